@@ -1,0 +1,57 @@
+// A small RAII layer over the Cyclone DDS C API, shared by every featureslam process.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include <dds/dds.h>
+
+namespace fslam::client {
+
+// Raised when a DDS call fails; caught at the session or main boundary.
+class DdsError : public std::runtime_error {
+ public:
+  DdsError(const std::string& what, dds_return_t code);
+  dds_return_t code() const { return code_; }
+
+ private:
+  dds_return_t code_;
+};
+
+// Throws DdsError naming `what` when `result` is a DDS error code; returns it otherwise.
+dds_entity_t check_dds(dds_entity_t result, const std::string& what);
+
+// Owns one DDS entity (participant, topic, reader, writer) and deletes it, with its children.
+class Entity {
+ public:
+  Entity() = default;
+  explicit Entity(dds_entity_t handle) : handle_(handle) {}
+  ~Entity() { reset(); }
+  Entity(const Entity&) = delete;
+  Entity& operator=(const Entity&) = delete;
+  Entity(Entity&& other) noexcept : handle_(std::exchange(other.handle_, 0)) {}
+  Entity& operator=(Entity&& other) noexcept {
+    if (this != &other) {
+      reset();
+      handle_ = std::exchange(other.handle_, 0);
+    }
+    return *this;
+  }
+  dds_entity_t get() const { return handle_; }
+  explicit operator bool() const { return handle_ > 0; }
+  void reset();
+
+ private:
+  dds_entity_t handle_ = 0;
+};
+
+// A participant on `domain`. Which network it uses comes from CYCLONEDDS_URI: on these machines
+// that is always configs/dds/loopback.xml (see docs/protocol.md).
+Entity make_participant(dds_domainid_t domain);
+
+// Topic name with the deployment's prefix, e.g. topic_name("test42", "poses") -> "test42/poses".
+// Tests use their own prefix so that parallel runs never see each other.
+std::string topic_name(const std::string& prefix, const std::string& topic);
+
+}  // namespace fslam::client

@@ -1,0 +1,23 @@
+// Camera trajectories in TUM format: "timestamp tx ty tz qx qy qz qw", camera-to-world.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+namespace fslam::core {
+
+struct StampedPose {
+  double timestamp = 0.0;          // seconds
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+};
+using Trajectory = std::vector<StampedPose>;
+
+// Reads a TUM trajectory ('#' comments and blank lines skipped, spaces, tabs or commas between
+// fields). Rejects lines with too few fields, non-numbers, non-finite values and quaternions far
+// from unit norm, naming the file and line.
+bool read_tum_trajectory(const std::string& path, Trajectory* trajectory, std::string* why);
+bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory, std::string* why);
+
+}  // namespace fslam::core

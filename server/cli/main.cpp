@@ -1,0 +1,27 @@
+// `fslam`: one command-line tool with subcommands, like git.
+#include <exception>
+#include <iostream>
+
+#include <CLI/CLI.hpp>
+
+#include "commands.hpp"
+#include "fslam/core/build_config.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{"featureslam " FSLAM_VERSION ": real-time feature-enriched 3DGS RGB-D SLAM"};
+  app.require_subcommand(1);
+  fslam::cli::CommandList commands;
+  fslam::cli::add_version_command(app, &commands);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);  // --help to stdout with 0, usage errors to stderr with non-zero
+  }
+  try {
+    for (const auto& command : commands)
+      if (command.app->parsed()) return command.run();
+  } catch (const std::exception& e) {
+    return fslam::cli::fail(e.what());
+  }
+  return fslam::cli::fail("no subcommand given (see fslam --help)");
+}

@@ -1,0 +1,20 @@
+// The one place that chooses a compute backend (design.md: compute.backend: auto|cpu|cuda).
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "fslam/core/compute/backend.hpp"
+
+namespace fslam::server {
+
+// The CUDA backends this binary was built with: "cuda" or "" (CPU only).
+bool cuda_compiled_in();
+
+// `choice` is "auto", "cpu" or "cuda". "auto" takes the GPU when one is usable and otherwise the
+// CPU, explaining the fallback in one line in `notice`. "cuda" in a build without CUDA, or with no
+// usable GPU, is a configuration error: nullptr with `why`.
+std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, std::string* notice,
+                                                   std::string* why);
+
+}  // namespace fslam::server

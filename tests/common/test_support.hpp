@@ -1,0 +1,44 @@
+// Paths and helpers shared by every test binary.
+#pragma once
+
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+
+#include <gtest/gtest.h>
+
+namespace fslam::test {
+
+// ../shared/data, or $FSLAM_DATA_DIR when set.
+inline std::filesystem::path data_dir() {
+  if (const char* env = std::getenv("FSLAM_DATA_DIR")) return env;
+  return FSLAM_TEST_DATA_DIR;
+}
+
+// build/bin, where `fslam` and `fslam-server` land.
+inline std::filesystem::path bin_dir() { return FSLAM_TEST_BIN_DIR; }
+
+// Forces every DDS participant the test creates onto the loopback profile (never the network).
+inline void use_loopback_dds() { setenv("CYCLONEDDS_URI", "file://" FSLAM_TEST_LOOPBACK_PROFILE, 1); }
+
+// A fresh empty folder under the system temp dir, unique per test.
+inline std::filesystem::path fresh_temp_dir(const std::string& name) {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  std::filesystem::path dir = std::filesystem::temp_directory_path() / "fslam_tests" /
+                              (std::string(info ? info->test_suite_name() : "t") + "." +
+                               (info ? info->name() : "t") + "." + name);
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+}  // namespace fslam::test
+
+// Skips the test with a clear message when ../shared/data/<sub> is absent.
+#define FSLAM_REQUIRE_DATA(sub)                                                               \
+  do {                                                                                        \
+    const auto fslam_data_path = ::fslam::test::data_dir() / (sub);                           \
+    if (!std::filesystem::exists(fslam_data_path))                                            \
+      GTEST_SKIP() << "real data not found at " << fslam_data_path                            \
+                   << " (needs ../shared/data beside the checkout, or FSLAM_DATA_DIR)";       \
+  } while (0)
