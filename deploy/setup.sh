@@ -1,0 +1,120 @@
+#!/usr/bin/env bash
+# featureslam set-up: install the Debian 12 packages (only those missing), configure, build, then
+# run the main job (--demo) or the whole test suite (--test). Safe to run again: every step skips
+# what is already done, and the build is incremental (ccache when present).
+#
+#   bash deploy/setup.sh --demo    # install, build, run the main job on the built-in default
+#   bash deploy/setup.sh --test    # install, build, run every test (what .ci/run calls)
+#
+# Options: --build-dir DIR (default build)  --jobs N (default: all cores)
+#          --cuda AUTO|ON|OFF (default AUTO: the CUDA backend is built when nvcc is found)
+#          --out DIR (demo output, default out/demo)  --no-install (skip apt)
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+MODE=build
+BUILD_DIR="$ROOT/build"
+JOBS="$(nproc)"
+CUDA=AUTO
+OUT="$ROOT/out/demo"
+INSTALL=1
+
+usage() { sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --demo) MODE=demo ;;
+    --test) MODE=test ;;
+    --build-only) MODE=build ;;
+    --build-dir) BUILD_DIR="$(realpath -m "$2")"; shift ;;
+    --jobs) JOBS="$2"; shift ;;
+    --cuda) CUDA="$2"; shift ;;
+    --out) OUT="$(realpath -m "$2")"; shift ;;
+    --no-install) INSTALL=0 ;;
+    -h|--help) usage; exit 0 ;;
+    *) echo "setup.sh: unknown option '$1'" >&2; usage >&2; exit 2 ;;
+  esac
+  shift
+done
+
+log() { printf '\n== %s\n' "$*"; }
+
+# Debian 12 packages of the product (see ../shared/platform.md for what each is for).
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config git ccache
+  libeigen3-dev libopencv-dev libflann-dev libceres-dev
+  cyclonedds-dev cyclonedds-tools libopenimageio-dev openimageio-tools
+  libgtest-dev libgmock-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libtbb-dev
+)
+
+install_packages() {
+  local missing=()
+  for p in "${PACKAGES[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  if [[ ${#missing[@]} -eq 0 ]]; then
+    log "packages: all ${#PACKAGES[@]} present"
+    return
+  fi
+  log "packages: installing ${missing[*]}"
+  local sudo=()
+  if [[ $(id -u) -ne 0 ]]; then
+    command -v sudo >/dev/null || { echo "setup.sh: run as root, or install: ${missing[*]}" >&2; exit 1; }
+    sudo=(sudo)
+  fi
+  "${sudo[@]}" apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive "${sudo[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+}
+
+build() {
+  local generator=()
+  command -v ninja >/dev/null && generator=(-G Ninja)
+  if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
+    log "configure ($BUILD_DIR, CUDA $CUDA)"
+    cmake -S "$ROOT" -B "$BUILD_DIR" "${generator[@]}" -DCMAKE_BUILD_TYPE=Release \
+      -DFSLAM_WITH_CUDA="$CUDA"
+  else
+    cmake "$BUILD_DIR" -DFSLAM_WITH_CUDA="$CUDA" >/dev/null
+  fi
+  log "build ($JOBS jobs)"
+  local t0=$SECONDS
+  cmake --build "$BUILD_DIR" -j "$JOBS"
+  echo "build took $((SECONDS - t0)) s; binaries in $BUILD_DIR/bin"
+}
+
+# No DDS traffic may leave loopback on these machines: every process started from here uses it.
+export CYCLONEDDS_URI="file://$ROOT/configs/dds/loopback.xml"
+
+run_tests() {
+  local data="$ROOT/../shared/data"
+  if [[ -d "$data" ]]; then
+    echo "real data: $data"
+  else
+    echo "real data: $data is absent; tests that need it will be skipped"
+  fi
+  log "tests (ctest, $JOBS jobs, DDS on loopback)"
+  ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 900
+}
+
+run_demo() {
+  local fslam="$BUILD_DIR/bin/fslam"
+  mkdir -p "$OUT"
+  log "main job: built-in synthetic room -> $OUT"
+  "$fslam" version
+  "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
+  "$fslam" info --dataset "$OUT/sequence"
+  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/sequence/groundtruth.txt" \
+    --json "$OUT/trajectory_eval.json" --plot "$OUT/trajectory.png"
+  log "outputs"
+  echo "sequence:        $OUT/sequence (TUM layout: rgb/, depth/, labels/, groundtruth.txt)"
+  echo "trajectory plot: $OUT/trajectory.png"
+  echo "evaluation:      $OUT/trajectory_eval.json"
+}
+
+[[ $INSTALL -eq 1 ]] && install_packages
+build
+case "$MODE" in
+  test) run_tests ;;
+  demo) run_demo ;;
+  build) ;;
+esac
