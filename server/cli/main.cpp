@@ -12,6 +12,9 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   fslam::cli::CommandList commands;
   fslam::cli::add_version_command(app, &commands);
+  fslam::cli::add_synth_command(app, &commands);
+  fslam::cli::add_info_command(app, &commands);
+  fslam::cli::add_eval_command(app, &commands);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,6 +1,8 @@
 // Paths and helpers shared by every test binary.
 #pragma once
 
+#include <unistd.h>
+
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -21,10 +23,12 @@ inline std::filesystem::path bin_dir() { return FSLAM_TEST_BIN_DIR; }
 // Forces every DDS participant the test creates onto the loopback profile (never the network).
 inline void use_loopback_dds() { setenv("CYCLONEDDS_URI", "file://" FSLAM_TEST_LOOPBACK_PROFILE, 1); }
 
-// A fresh empty folder under the system temp dir, unique per test.
+// A fresh empty folder under the system temp dir, unique per test and process (ctest runs tests
+// of one binary in parallel processes).
 inline std::filesystem::path fresh_temp_dir(const std::string& name) {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
   std::filesystem::path dir = std::filesystem::temp_directory_path() / "fslam_tests" /
+                              std::to_string(getpid()) /
                               (std::string(info ? info->test_suite_name() : "t") + "." +
                                (info ? info->name() : "t") + "." + name);
   std::filesystem::remove_all(dir);

@@ -104,7 +104,8 @@ bool read_single_channel_image(const std::string& path, cv::Mat* image, std::str
   return true;
 }
 
-bool write_image(const std::string& path, const cv::Mat& image, std::string* why) {
+bool write_image(const std::string& path, const cv::Mat& image, std::string* why,
+                 const ImageWriteOptions& options) {
   if (image.empty()) return fail(why, path + ": refusing to write an empty image");
   OIIO::TypeDesc type;
   switch (image.depth()) {
@@ -117,6 +118,9 @@ bool write_image(const std::string& path, const cv::Mat& image, std::string* why
   auto out = OIIO::ImageOutput::create(path);
   if (!out) return fail(why, path + ": no image writer for this extension (" + OIIO::geterror() + ")");
   OIIO::ImageSpec spec(m.cols, m.rows, m.channels(), type);
+  if (options.png_compression >= 0) spec.attribute("png:compressionLevel", options.png_compression);
+  if (options.png_filter != ImageWriteOptions::kPngAdaptive)
+    spec.attribute("png:filter", static_cast<int>(options.png_filter));
   if (!out->open(path, spec)) return fail(why, path + ": cannot open for writing (" + out->geterror() + ")");
   if (!out->write_image(type, m.data) || !out->close())
     return fail(why, path + ": cannot write image (" + out->geterror() + ")");

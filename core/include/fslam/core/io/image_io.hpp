@@ -17,9 +17,18 @@ bool read_depth_image(const std::string& path, double scale, cv::Mat* depth_m, s
 // Reads any single-channel image as its stored type (CV_8U, CV_16U or CV_32F); used for labels.
 bool read_single_channel_image(const std::string& path, cv::Mat* image, std::string* why);
 
+// Encoder settings; the defaults are the library's. Level 1 with a fixed filter encodes 640x480
+// frames 3-6x faster than the defaults for at most 7 % more bytes (measured in fslam synth).
+struct ImageWriteOptions {
+  enum PngFilter : int { kPngAdaptive = 0, kPngNone = 8, kPngSub = 16, kPngUp = 32 };  // libpng bits
+  int png_compression = -1;        // zlib level 0-9; -1 = library default (6)
+  PngFilter png_filter = kPngAdaptive;
+};
+
 // Writes CV_8UC1/3 (RGB order), CV_16UC1 or CV_32FC1 (EXR/TIFF) images; the format follows the
 // extension. Parent folders must exist.
-bool write_image(const std::string& path, const cv::Mat& image, std::string* why);
+bool write_image(const std::string& path, const cv::Mat& image, std::string* why,
+                 const ImageWriteOptions& options = {});
 
 // Converts metres to 16-bit depth: raw = round(depth_m * scale), missing or out-of-range -> 0.
 cv::Mat depth_to_u16(const cv::Mat& depth_m, double scale);

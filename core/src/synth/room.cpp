@@ -1,0 +1,507 @@
+// The procedural room: a fixed list of furniture slots whose sizes, positions, colours and
+// textures are drawn from the seed. Every slot is placed so that the camera zone stays clear
+// and, from the zone, every object lies within the view sweep of make_trajectory.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "fslam/core/synth/synthetic_scene.hpp"
+#include "synth_random.hpp"
+
+namespace fslam::core {
+namespace {
+
+using Eigen::Isometry3d;
+using Eigen::Vector3d;
+using synth::Rng;
+
+constexpr double kPi = 3.14159265358979323846;
+
+Isometry3d pose(const Vector3d& t, double yaw = 0.0) {
+  Isometry3d T = Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(yaw, Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = t;
+  return T;
+}
+
+SynthPrimitive box(const Vector3d& centre, const Vector3d& half_extents, double yaw = 0.0) {
+  return {SynthShape::box, pose(centre, yaw), half_extents};
+}
+
+SynthPrimitive sphere(const Vector3d& centre, double radius) {
+  return {SynthShape::sphere, pose(centre), Vector3d(radius, radius, radius)};
+}
+
+// Upright cylinder standing on z = bottom.
+SynthPrimitive cylinder(const Vector3d& bottom_centre, double radius, double height) {
+  return {SynthShape::cylinder, pose(bottom_centre + Vector3d(0.0, 0.0, 0.5 * height)),
+          Vector3d(radius, radius, 0.5 * height)};
+}
+
+// h, s, v in [0, 1] (h wraps).
+Vector3d hsv(double h, double s, double v) {
+  h = h - std::floor(h);
+  s = std::clamp(s, 0.0, 1.0);
+  v = std::clamp(v, 0.0, 1.0);
+  const double c = v * s;
+  const double hp = h * 6.0;
+  const double x = c * (1.0 - std::abs(std::fmod(hp, 2.0) - 1.0));
+  Vector3d rgb;
+  if (hp < 1.0) rgb = {c, x, 0.0};
+  else if (hp < 2.0) rgb = {x, c, 0.0};
+  else if (hp < 3.0) rgb = {0.0, c, x};
+  else if (hp < 4.0) rgb = {0.0, x, c};
+  else if (hp < 5.0) rgb = {x, 0.0, c};
+  else rgb = {c, 0.0, x};
+  return rgb + Vector3d::Constant(v - c);
+}
+
+SynthMaterial material(Rng& rng, SynthPattern pattern, const Vector3d& a, const Vector3d& b,
+                       double period, double mottle_scale = 0.12, double mottle_amount = 0.2) {
+  SynthMaterial m;
+  m.pattern = pattern;
+  m.colour_a = a;
+  m.colour_b = b;
+  m.period = period;
+  m.mottle_scale = mottle_scale;
+  m.mottle_amount = mottle_amount;
+  m.texture_seed = static_cast<std::uint32_t>(rng.next() >> 32);
+  return m;
+}
+
+// A light colour and a clearly darker one of a nearby hue: enough contrast for tracking.
+std::pair<Vector3d, Vector3d> two_tone(Rng& rng, double hue, double saturation, double value) {
+  const double h = hue + rng.uniform(-0.03, 0.03);
+  const double s = saturation + rng.uniform(-0.08, 0.08);
+  const double v = value + rng.uniform(-0.06, 0.06);
+  return {hsv(h, s, v), hsv(h + rng.uniform(-0.06, 0.06), s + 0.1, v * rng.uniform(0.55, 0.7))};
+}
+
+SynthMaterial wood(Rng& rng, double period) {
+  auto [a, b] = two_tone(rng, rng.uniform(0.06, 0.1), 0.55, 0.72);
+  SynthMaterial m = material(rng, SynthPattern::planks, a, b, period, 0.1, 0.15);
+  m.colour_c = 0.45 * b;
+  return m;
+}
+
+SynthMaterial painted(Rng& rng, SynthPattern pattern, double period) {
+  auto [a, b] = two_tone(rng, rng.uniform(), rng.uniform(0.3, 0.6), 0.8);
+  SynthMaterial m = material(rng, pattern, a, b, period, 0.1, 0.2);
+  m.colour_c = 0.5 * b;
+  return m;
+}
+
+void compute_bounds(SynthObject* object) {
+  object->bounds.setEmpty();
+  object->bounded = true;
+  for (const SynthPrimitive& p : object->primitives) {
+    Vector3d half = p.size;
+    switch (p.shape) {
+      case SynthShape::box: half = p.size; break;
+      case SynthShape::sphere: half = Vector3d::Constant(p.size.x()); break;
+      case SynthShape::cylinder: half = {p.size.x(), p.size.x(), p.size.z()}; break;
+      case SynthShape::plane:
+        object->bounded = false;
+        object->bounds.setEmpty();
+        return;
+    }
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vector3d c((corner & 1) ? half.x() : -half.x(), (corner & 2) ? half.y() : -half.y(),
+                       (corner & 4) ? half.z() : -half.z());
+      object->bounds.extend(p.T_object_primitive * c);
+    }
+  }
+}
+
+class RoomBuilder {
+ public:
+  explicit RoomBuilder(SyntheticRoom* room) : room_(room) {}
+
+  SynthObject& add(SynthClass class_id, std::string name, const Isometry3d& T_world_object,
+                   std::vector<SynthPrimitive> primitives, const SynthMaterial& m) {
+    SynthObject o;
+    o.instance_id = static_cast<std::uint16_t>(room_->objects.size() + 1);
+    o.class_id = class_id;
+    o.name = std::move(name);
+    o.T_world_object = T_world_object;
+    o.primitives = std::move(primitives);
+    o.material = m;
+    compute_bounds(&o);
+    room_->objects.push_back(std::move(o));
+    return room_->objects.back();
+  }
+
+  // A room face: the plane through `origin` facing the interior along `normal`, with the
+  // texture's x axis horizontal (or along world x for floor and ceiling).
+  void add_face(SynthClass class_id, std::string name, const Vector3d& origin,
+                const Vector3d& normal, const SynthMaterial& m) {
+    const Vector3d x = std::abs(normal.z()) > 0.5 ? Vector3d::UnitX()
+                                                  : Vector3d::UnitZ().cross(normal).normalized();
+    Isometry3d T = Isometry3d::Identity();
+    T.linear().col(0) = x;
+    T.linear().col(1) = normal.cross(x);
+    T.linear().col(2) = normal;
+    T.translation() = origin;
+    add(class_id, std::move(name), T,
+        {SynthPrimitive{SynthShape::plane, Isometry3d::Identity(), Vector3d::Zero()}}, m);
+  }
+
+ private:
+  SyntheticRoom* room_;
+};
+
+SynthMaterial wall_material(Rng& rng, int style) {
+  switch (style) {
+    case 0: {  // brick
+      auto [a, b] = two_tone(rng, rng.uniform(0.0, 0.07), 0.5, 0.68);
+      SynthMaterial m =
+          material(rng, SynthPattern::bricks, a, b, rng.uniform(0.28, 0.34), 0.2, 0.15);
+      m.colour_c = hsv(0.1, 0.08, 0.82);
+      return m;
+    }
+    case 1: {  // striped wallpaper
+      auto [a, b] = two_tone(rng, rng.uniform(), rng.uniform(0.2, 0.35), 0.85);
+      SynthMaterial m =
+          material(rng, SynthPattern::stripes, a, b, rng.uniform(0.14, 0.22), 0.18, 0.22);
+      m.axis = Vector3d::UnitX();  // stripes run vertically: they vary along the wall
+      return m;
+    }
+    case 2: {  // checked wallpaper
+      auto [a, b] = two_tone(rng, rng.uniform(), rng.uniform(0.2, 0.35), 0.85);
+      return material(rng, SynthPattern::checker, a, b, rng.uniform(0.2, 0.28), 0.15, 0.2);
+    }
+    default: {  // sponged plaster
+      auto [a, b] = two_tone(rng, rng.uniform(), rng.uniform(0.25, 0.4), 0.85);
+      return material(rng, SynthPattern::noise, a, b, rng.uniform(0.18, 0.26), 0.06, 0.25);
+    }
+  }
+}
+
+}  // namespace
+
+const char* to_string(SynthNoise noise) {
+  switch (noise) {
+    case SynthNoise::none: return "none";
+    case SynthNoise::kinect: return "kinect";
+  }
+  return "unknown";
+}
+
+bool parse_synth_noise(const std::string& text, SynthNoise* noise, std::string* why) {
+  if (text == "none") *noise = SynthNoise::none;
+  else if (text == "kinect") *noise = SynthNoise::kinect;
+  else {
+    if (why) *why = "unknown noise model '" + text + "' (expected kinect or none)";
+    return false;
+  }
+  return true;
+}
+
+const char* synth_class_name(SynthClass c) {
+  switch (c) {
+    case SynthClass::unlabelled: return "unlabelled";
+    case SynthClass::wall: return "wall";
+    case SynthClass::floor: return "floor";
+    case SynthClass::ceiling: return "ceiling";
+    case SynthClass::table: return "table";
+    case SynthClass::chair: return "chair";
+    case SynthClass::cabinet: return "cabinet";
+    case SynthClass::shelf: return "shelf";
+    case SynthClass::sofa: return "sofa";
+    case SynthClass::lamp: return "lamp";
+    case SynthClass::plant: return "plant";
+    case SynthClass::box: return "box";
+    case SynthClass::ball: return "ball";
+    case SynthClass::cup: return "cup";
+    case SynthClass::book: return "book";
+    case SynthClass::vase: return "vase";
+    case SynthClass::picture: return "picture";
+    case SynthClass::rug: return "rug";
+  }
+  return "unknown";
+}
+
+bool is_structural(SynthClass c) {
+  return c == SynthClass::wall || c == SynthClass::floor || c == SynthClass::ceiling;
+}
+
+PinholeCamera synth_default_camera() { return {525.0, 525.0, 319.5, 239.5, 640, 480}; }
+
+SyntheticRoom make_room(std::uint64_t seed) {
+  Rng rng(synth::stream_seed(seed, synth::Stream::room));
+  SyntheticRoom room;
+  const double W = rng.uniform(4.2, 4.7);  // x extent
+  const double D = rng.uniform(3.9, 4.3);  // y extent: the camera looks along +y
+  const double H = rng.uniform(2.5, 2.8);
+  room.size = {W, D, H};
+  room.camera_zone = Eigen::AlignedBox3d(Vector3d(0.5 * W - 0.45, 0.85, 1.35),
+                                         Vector3d(0.5 * W + 0.45, 1.35, 1.6));
+  RoomBuilder builder(&room);
+
+  // Structure: four walls, floor, ceiling, each its own instance and material.
+  int wall_style = rng.below(4);
+  const char* wall_names[4] = {"wall_south", "wall_north", "wall_west", "wall_east"};
+  const Vector3d wall_origins[4] = {{0, 0, 0}, {0, D, 0}, {0, 0, 0}, {W, 0, 0}};
+  const Vector3d wall_normals[4] = {Vector3d::UnitY(), -Vector3d::UnitY(), Vector3d::UnitX(),
+                                    -Vector3d::UnitX()};
+  for (int i = 0; i < 4; ++i) {
+    builder.add_face(SynthClass::wall, wall_names[i], wall_origins[i], wall_normals[i],
+                     wall_material(rng, wall_style));
+    wall_style = (wall_style + 1 + rng.below(3)) % 4;  // neighbours differ
+  }
+  {
+    SynthMaterial floor;
+    if (rng.uniform() < 0.6) {
+      floor = wood(rng, rng.uniform(0.14, 0.2));
+    } else {
+      auto [a, b] = two_tone(rng, rng.uniform(), rng.uniform(0.05, 0.25), 0.78);
+      floor = material(rng, SynthPattern::tiles, a, b, rng.uniform(0.35, 0.5), 0.1, 0.18);
+      floor.colour_c = 0.4 * b;
+    }
+    builder.add_face(SynthClass::floor, "floor", {0, 0, 0}, Vector3d::UnitZ(), floor);
+    auto [a, b] = two_tone(rng, rng.uniform(), 0.06, 0.88);
+    SynthMaterial ceiling = material(rng, SynthPattern::tiles, a, b, 0.6, 0.05, 0.25);
+    ceiling.colour_c = 0.6 * b;
+    builder.add_face(SynthClass::ceiling, "ceiling", {0, 0, H}, -Vector3d::UnitZ(), ceiling);
+  }
+
+  // Table in the middle of the far half, with a rug under it and things on it.
+  const double table_x = 0.5 * W + rng.uniform(-0.2, 0.2);
+  const double table_y = D * rng.uniform(0.56, 0.6);
+  const double table_yaw = rng.uniform(-0.12, 0.12);
+  const double table_l = rng.uniform(1.2, 1.45);
+  const double table_w = rng.uniform(0.7, 0.85);
+  const double table_h = rng.uniform(0.72, 0.78);
+  const Isometry3d T_world_table = pose({table_x, table_y, 0.0}, table_yaw);
+  {
+    std::vector<SynthPrimitive> parts = {
+        box({0, 0, table_h - 0.02}, {0.5 * table_l, 0.5 * table_w, 0.02})};
+    for (int i = 0; i < 4; ++i) {
+      const double x = (i & 1 ? 1.0 : -1.0) * (0.5 * table_l - 0.08);
+      const double y = (i & 2 ? 1.0 : -1.0) * (0.5 * table_w - 0.08);
+      parts.push_back(cylinder({x, y, 0.0}, 0.03, table_h - 0.04));
+    }
+    builder.add(SynthClass::table, "table", T_world_table, parts, wood(rng, 0.12));
+  }
+  {
+    SynthMaterial rug =
+        painted(rng, rng.uniform() < 0.5 ? SynthPattern::checker : SynthPattern::stripes,
+                rng.uniform(0.16, 0.24));
+    rug.axis = Vector3d::UnitX();
+    builder.add(SynthClass::rug, "rug", T_world_table,
+                {box({0, 0, 0.005}, {0.5 * table_l + 0.65, 0.5 * table_w + 0.5, 0.005})}, rug);
+  }
+  // Two chairs behind the table, facing the camera; backrest on the chair's local +y.
+  for (int i = 0; i < 2; ++i) {
+    const double seat_h = rng.uniform(0.44, 0.48);
+    const double back_h = rng.uniform(0.4, 0.5);
+    std::vector<SynthPrimitive> parts = {
+        box({0, 0, seat_h - 0.025}, {0.22, 0.22, 0.025}),
+        box({0, 0.2, seat_h + 0.5 * back_h}, {0.22, 0.02, 0.5 * back_h})};
+    for (int k = 0; k < 4; ++k)
+      parts.push_back(box({(k & 1 ? 0.19 : -0.19), (k & 2 ? 0.19 : -0.19), 0.5 * (seat_h - 0.05)},
+                          {0.02, 0.02, 0.5 * (seat_h - 0.05)}));
+    const Vector3d seat_in_table((i == 0 ? -0.25 : 0.25) * table_l + rng.uniform(-0.08, 0.08),
+                                 0.5 * table_w + rng.uniform(0.12, 0.22), 0.0);
+    const Isometry3d T = T_world_table * pose(seat_in_table, rng.uniform(-0.3, 0.3));
+    builder.add(SynthClass::chair, "chair_" + std::to_string(i + 1), T, parts,
+                rng.uniform() < 0.5 ? wood(rng, 0.08)
+                                    : painted(rng, SynthPattern::noise, rng.uniform(0.05, 0.08)));
+  }
+  // Table top: four slots in shuffled order for cup, vase, book and ball.
+  {
+    Vector3d slots[4];
+    for (int i = 0; i < 4; ++i)
+      slots[i] = {(i & 1 ? 0.27 : -0.27) * table_l + rng.uniform(-0.06, 0.06),
+                  (i & 2 ? 0.22 : -0.22) * table_w + rng.uniform(-0.04, 0.04), table_h};
+    for (int i = 3; i > 0; --i) std::swap(slots[i], slots[rng.below(i + 1)]);
+    auto on_table = [&](int slot, double yaw) { return T_world_table * pose(slots[slot], yaw); };
+
+    const double cup_r = rng.uniform(0.04, 0.05);
+    const double cup_h = rng.uniform(0.09, 0.12);
+    SynthMaterial cup = painted(rng, SynthPattern::stripes, rng.uniform(0.025, 0.035));
+    builder.add(SynthClass::cup, "cup", on_table(0, rng.uniform(0.0, 2.0 * kPi)),
+                {cylinder({0, 0, 0}, cup_r, cup_h),
+                 box({cup_r + 0.012, 0, 0.55 * cup_h}, {0.014, 0.007, 0.3 * cup_h})},
+                cup);
+    const double vase_r = rng.uniform(0.07, 0.09);
+    SynthMaterial vase = painted(rng, SynthPattern::stripes, rng.uniform(0.035, 0.05));
+    vase.axis = Vector3d(1.0, 0.0, 1.5).normalized();
+    builder.add(SynthClass::vase, "vase", on_table(1, 0.0),
+                {sphere({0, 0, vase_r}, vase_r),
+                 cylinder({0, 0, 1.6 * vase_r}, 0.4 * vase_r, rng.uniform(0.12, 0.18))},
+                vase);
+    const Vector3d book_half(rng.uniform(0.08, 0.11), rng.uniform(0.11, 0.15),
+                             rng.uniform(0.015, 0.025));
+    SynthMaterial book = painted(rng, SynthPattern::checker, rng.uniform(0.04, 0.06));
+    builder.add(SynthClass::book, "book_1", on_table(2, rng.uniform(-0.6, 0.6)),
+                {box({0, 0, book_half.z()}, book_half),
+                 box({0.01, 0.005, 2.0 * book_half.z() + 0.7 * book_half.z()},
+                     {0.9 * book_half.x(), 0.9 * book_half.y(), 0.7 * book_half.z()}, 0.25)},
+                book);
+    const double ball_r = rng.uniform(0.07, 0.09);
+    builder.add(SynthClass::ball, "ball_1", on_table(3, 0.0), {sphere({0, 0, ball_r}, ball_r)},
+                painted(rng, SynthPattern::checker, rng.uniform(0.05, 0.07)));
+  }
+
+  // Along the far wall (y = D): a cabinet on the west side, a shelf on the east side.
+  {
+    const double w = rng.uniform(0.8, 1.0);
+    const double h = rng.uniform(0.8, 1.0);
+    const double d = 0.45;
+    std::vector<SynthPrimitive> parts = {box({0, 0, 0.5 * h}, {0.5 * w, 0.5 * d, 0.5 * h})};
+    for (int k = 0; k < 2; ++k) {
+      const double zc = (k == 0 ? 0.3 : 0.72) * h;
+      parts.push_back(box({0, -0.5 * d - 0.01, zc}, {0.5 * w - 0.04, 0.01, 0.17 * h}));
+      parts.push_back(box({0, -0.5 * d - 0.03, zc + 0.08 * h}, {0.09, 0.012, 0.012}));
+    }
+    builder.add(
+        SynthClass::cabinet, "cabinet",
+        pose({0.8 + 0.5 * w + rng.uniform(0.0, 0.15), D - 0.5 * d, 0.0}, rng.uniform(-0.03, 0.03)),
+        parts, rng.uniform() < 0.5 ? wood(rng, 0.11) : painted(rng, SynthPattern::stripes, 0.12));
+  }
+  {
+    const double w = rng.uniform(0.85, 1.0);
+    const double h = rng.uniform(1.7, 1.9);
+    const double d = 0.34;
+    std::vector<SynthPrimitive> parts;
+    for (int side = -1; side <= 1; side += 2)
+      parts.push_back(box({side * (0.5 * w - 0.015), 0, 0.5 * h}, {0.015, 0.5 * d, 0.5 * h}));
+    parts.push_back(box({0, 0.5 * d - 0.01, 0.5 * h}, {0.5 * w, 0.01, 0.5 * h}));
+    const int boards = 5;
+    std::vector<double> board_z;
+    for (int k = 0; k < boards; ++k) {
+      const double z = 0.04 + (h - 0.06) * k / (boards - 1);
+      board_z.push_back(z);
+      parts.push_back(box({0, 0, z}, {0.5 * w - 0.03, 0.5 * d - 0.02, 0.015}));
+    }
+    const Isometry3d T_world_shelf =
+        pose({W - 0.55 - 0.5 * w, D - 0.5 * d, 0.0}, rng.uniform(-0.03, 0.03));
+    builder.add(SynthClass::shelf, "shelf", T_world_shelf, parts, wood(rng, 0.1));
+
+    // A row of books standing on the second board.
+    std::vector<SynthPrimitive> books;
+    double x = -0.5 * w + 0.05;
+    const double row_end = rng.uniform(0.15, 0.35) * w;
+    while (x < row_end) {
+      const double t = rng.uniform(0.025, 0.05);
+      const double bh = rng.uniform(0.17, 0.26);
+      const double bd = rng.uniform(0.14, 0.2);
+      books.push_back(box({x + 0.5 * t, -0.5 * d + 0.5 * bd + 0.03, board_z[1] + 0.015 + 0.5 * bh},
+                          {0.5 * t, 0.5 * bd, 0.5 * bh}));
+      x += t + 0.003;
+    }
+    SynthMaterial book = painted(rng, SynthPattern::stripes, 0.09);
+    book.axis = Vector3d::UnitX();
+    builder.add(SynthClass::book, "book_2", T_world_shelf, books, book);
+  }
+  // Corners: a plant (north-west) and a floor lamp (north-east).
+  {
+    const double pot_r = rng.uniform(0.15, 0.19);
+    const double pot_h = rng.uniform(0.35, 0.45);
+    std::vector<SynthPrimitive> parts = {cylinder({0, 0, 0}, pot_r, pot_h)};
+    for (int k = 0; k < 3; ++k) {
+      const double a = 2.0 * kPi * k / 3.0 + rng.uniform(-0.4, 0.4);
+      parts.push_back(
+          sphere({0.12 * std::cos(a), 0.12 * std::sin(a), pot_h + rng.uniform(0.2, 0.45)},
+                 rng.uniform(0.17, 0.24)));
+    }
+    SynthMaterial leaves =
+        material(rng, SynthPattern::noise, hsv(rng.uniform(0.25, 0.35), 0.6, 0.6),
+                 hsv(rng.uniform(0.22, 0.3), 0.7, 0.3), 0.05, 0.2, 0.15);
+    builder.add(SynthClass::plant, "plant", pose({0.42, D - 0.42, 0.0}), parts, leaves);
+  }
+  {
+    const double height = rng.uniform(1.45, 1.6);
+    const double shade_r = rng.uniform(0.17, 0.21);
+    std::vector<SynthPrimitive> parts = {cylinder({0, 0, 0}, 0.15, 0.03),
+                                         cylinder({0, 0, 0.03}, 0.016, height - 0.1),
+                                         cylinder({0, 0, height - 0.2}, shade_r, 0.26)};
+    SynthMaterial lamp = painted(rng, SynthPattern::stripes, rng.uniform(0.05, 0.07));
+    builder.add(SynthClass::lamp, "lamp", pose({W - 0.3, D - 0.3, 0.0}), parts, lamp);
+  }
+  // West wall: sofa; east wall: a storage box.
+  {
+    const double length = rng.uniform(1.6, 1.9);
+    const double y_end = D - rng.uniform(0.75, 0.9);
+    std::vector<SynthPrimitive> parts = {
+        box({0, 0, 0.2}, {0.5 * length, 0.42, 0.2}),
+        box({0, 0.31, 0.62}, {0.5 * length - 0.18, 0.11, 0.22}),
+    };
+    for (int side = -1; side <= 1; side += 2) {
+      parts.push_back(box({side * (0.5 * length - 0.09), 0, 0.3}, {0.09, 0.42, 0.3}));
+      parts.push_back(
+          box({side * (0.25 * length - 0.05), -0.1, 0.46}, {0.25 * length - 0.1, 0.3, 0.06}));
+    }
+    // Local +y (the backrest) faces the west wall.
+    builder.add(SynthClass::sofa, "sofa", pose({0.47, y_end - 0.5 * length, 0.0}, 0.5 * kPi), parts,
+                painted(rng, SynthPattern::checker, rng.uniform(0.09, 0.12)));
+  }
+  {
+    // A storage box with a ball on top.
+    const Vector3d half(rng.uniform(0.2, 0.26), rng.uniform(0.2, 0.26), rng.uniform(0.18, 0.25));
+    auto [a, b] = two_tone(rng, rng.uniform(0.08, 0.11), 0.45, 0.7);
+    SynthMaterial cardboard = material(rng, SynthPattern::stripes, a, b, 0.1, 0.05, 0.2);
+    cardboard.axis = Vector3d(0.0, 1.0, 0.4).normalized();
+    const Isometry3d T_world_box =
+        pose({W - 0.1 - half.x(), D - rng.uniform(1.0, 1.2), 0.0}, rng.uniform(-0.2, 0.2));
+    builder.add(SynthClass::box, "box_1", T_world_box, {box({0, 0, half.z()}, half)}, cardboard);
+    const double r = rng.uniform(0.1, 0.13);
+    builder.add(
+        SynthClass::ball, "ball_2",
+        T_world_box * pose({rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), 2.0 * half.z()}),
+        {sphere({0, 0, r}, r)}, painted(rng, SynthPattern::stripes, 0.07));
+  }
+  // Pictures: thin boards on the walls, their face on local -y.
+  {
+    auto picture = [&](const std::string& name, const Vector3d& at, double yaw) {
+      const double w = rng.uniform(0.45, 0.7);
+      const double h = rng.uniform(0.35, 0.5);
+      auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
+      SynthMaterial paint =
+          material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
+      builder.add(SynthClass::picture, name, pose(at, yaw),
+                  {box({0, -0.012, 0}, {0.5 * w, 0.012, 0.5 * h})}, paint);
+    };
+    picture("picture_1", {rng.uniform(1.1, 1.5), D, rng.uniform(1.45, 1.6)}, 0.0);
+    picture("picture_2", {0.0, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, 0.5 * kPi);
+    picture("picture_3", {W, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, -0.5 * kPi);
+  }
+
+  room.light_position = {table_x, 0.5 * (table_y + 1.1), H - 0.25};
+  room.look_at = {table_x, table_y + 0.4, 0.9};
+  return room;
+}
+
+double synth_clearance(const SyntheticRoom& room, const Vector3d& p_world) {
+  double best = std::numeric_limits<double>::infinity();
+  for (const SynthObject& object : room.objects) {
+    const Vector3d p_object = object.T_world_object.inverse() * p_world;
+    for (const SynthPrimitive& prim : object.primitives) {
+      const Vector3d p = prim.T_object_primitive.inverse() * p_object;
+      double d = 0.0;
+      switch (prim.shape) {
+        case SynthShape::box: {
+          const Vector3d q = p.cwiseAbs() - prim.size;
+          d = q.cwiseMax(0.0).norm() + std::min(q.maxCoeff(), 0.0);
+          break;
+        }
+        case SynthShape::sphere: d = p.norm() - prim.size.x(); break;
+        case SynthShape::cylinder: {
+          const Eigen::Vector2d q(p.head<2>().norm() - prim.size.x(),
+                                  std::abs(p.z()) - prim.size.z());
+          d = q.cwiseMax(0.0).norm() + std::min(q.maxCoeff(), 0.0);
+          break;
+        }
+        case SynthShape::plane: d = p.z(); break;
+      }
+      best = std::min(best, d);
+    }
+  }
+  return best;
+}
+
+}  // namespace fslam::core

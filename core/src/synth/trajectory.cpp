@@ -1,0 +1,114 @@
+// A hand-held-like camera path: sums of slow sinusoids for the walk, a look-at target with a
+// sweeping yaw so the whole furnished half of the room is seen within the first two seconds, and
+// a small high-frequency shake. All phases and periods come from the seed.
+#include <cmath>
+
+#include "fslam/core/geometry/se3.hpp"
+#include "fslam/core/synth/synthetic_scene.hpp"
+#include "synth_random.hpp"
+
+namespace fslam::core {
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::Vector3d;
+
+constexpr double kTwoPi = 6.283185307179586;
+constexpr double kDeg = 0.017453292519943295;
+
+struct Wave {
+  double amplitude = 0.0;
+  double period = 1.0;  // s
+  double phase = 0.0;   // rad
+  double at(double t) const { return amplitude * std::sin(kTwoPi * t / period + phase); }
+};
+
+Wave wave(synth::Rng& rng, double amplitude, double period_lo, double period_hi) {
+  return {amplitude, rng.uniform(period_lo, period_hi), rng.uniform(0.0, kTwoPi)};
+}
+
+// Camera rotation looking along `forward` with the image's "up" towards world +z.
+Matrix3d look_along(const Vector3d& forward) {
+  const Vector3d z = forward.normalized();
+  const Vector3d x = z.cross(Vector3d::UnitZ()).normalized();  // right
+  const Vector3d y = z.cross(x);                               // down
+  Matrix3d R;
+  R.col(0) = x;
+  R.col(1) = y;
+  R.col(2) = z;
+  return R;
+}
+
+}  // namespace
+
+Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options) {
+  synth::Rng rng(synth::stream_seed(options.seed, synth::Stream::trajectory));
+  const Vector3d centre = room.camera_zone.center();
+  const Vector3d half = 0.5 * room.camera_zone.sizes();
+
+  // The walk, in units of the zone's half extents (each axis stays within [-1, 1]).
+  const Wave walk_x[2] = {wave(rng, 0.7, 14.0, 18.0), wave(rng, 0.3, 5.0, 7.0)};
+  const Wave walk_y[2] = {wave(rng, 0.8, 10.0, 13.0), wave(rng, 0.2, 4.0, 5.0)};
+  const Wave walk_z = wave(rng, 1.0, 7.0, 9.0);
+  // Where the camera looks: a slowly drifting point ahead, at the depth and height of
+  // room.look_at (m).
+  const Wave target_x = wave(rng, 0.12, 9.0, 13.0);
+  const Wave target_y = wave(rng, 0.2, 11.0, 15.0);
+  const Wave target_z = wave(rng, 0.1, 8.0, 11.0);
+  // The sweep: starts at one extreme (side chosen by the seed) and crosses to the other within
+  // the first 2 s, its amplitude breathing slowly; plus small pitch and roll oscillations.
+  const double sweep_sign = rng.sign();
+  const double sweep_period = 4.0;  // s: one extreme to the other in 60 frames
+  const Wave sweep_breath = wave(rng, 0.25, 15.0, 20.0);
+  const Wave yaw_slow = wave(rng, 3.0 * kDeg, 11.0, 14.0);
+  const Wave pitch = wave(rng, 3.0 * kDeg, 6.0, 8.0);
+  const Wave roll = wave(rng, 2.5 * kDeg, 7.0, 10.0);
+  // Shake: three octaves around 2, 3.5 and 6 Hz; millimetres and a tenth of a degree.
+  Wave shake_t[3][3], shake_r[3][3];
+  const double shake_t_amp[3] = {0.0008, 0.0005, 0.0003};
+  const double shake_r_amp[3] = {0.12 * kDeg, 0.07 * kDeg, 0.04 * kDeg};
+  const double shake_hz[3][2] = {{1.7, 2.3}, {3.1, 3.9}, {5.2, 6.4}};
+  for (int axis = 0; axis < 3; ++axis)
+    for (int k = 0; k < 3; ++k) {
+      shake_t[axis][k] = wave(rng, shake_t_amp[k], 1.0 / shake_hz[k][1], 1.0 / shake_hz[k][0]);
+      shake_r[axis][k] = wave(rng, shake_r_amp[k], 1.0 / shake_hz[k][1], 1.0 / shake_hz[k][0]);
+    }
+
+  Trajectory trajectory;
+  trajectory.reserve(options.frames);
+  for (std::size_t i = 0; i < options.frames; ++i) {
+    const double t = static_cast<double>(i) / kSynthFrameRate;
+    Vector3d p =
+        centre + Vector3d(half.x() * (walk_x[0].at(t) + walk_x[1].at(t)),
+                          half.y() * (walk_y[0].at(t) + walk_y[1].at(t)), half.z() * walk_z.at(t));
+    // The target follows the camera sideways, so the sweep alone sets where the view points.
+    const Vector3d target(p.x() + target_x.at(t), room.look_at.y() + target_y.at(t),
+                          room.look_at.z() + target_z.at(t));
+
+    const double sweep_amplitude =
+        22.0 * kDeg * (1.0 + 0.5 * (sweep_breath.at(t) - sweep_breath.at(0.0)));
+    const double yaw =
+        sweep_sign * sweep_amplitude * std::cos(kTwoPi * t / sweep_period) + yaw_slow.at(t);
+    Vector3d shake_p, shake_phi;
+    for (int axis = 0; axis < 3; ++axis) {
+      shake_p[axis] = shake_t[axis][0].at(t) + shake_t[axis][1].at(t) + shake_t[axis][2].at(t);
+      shake_phi[axis] = shake_r[axis][0].at(t) + shake_r[axis][1].at(t) + shake_r[axis][2].at(t);
+    }
+    p += shake_p;
+
+    // Yaw about the world vertical, then pitch and roll about the camera's own axes
+    // (camera x right, z forward; positive pitch looks up).
+    const Matrix3d R =
+        Eigen::AngleAxisd(yaw, Vector3d::UnitZ()).toRotationMatrix() * look_along(target - p) *
+        Eigen::AngleAxisd(pitch.at(t), Vector3d::UnitX()).toRotationMatrix() *
+        Eigen::AngleAxisd(roll.at(t), Vector3d::UnitZ()).toRotationMatrix() * so3_exp(shake_phi);
+    StampedPose pose;
+    pose.timestamp = t;
+    pose.T_world_camera.linear() = R;
+    pose.T_world_camera.translation() = p;
+    trajectory.push_back(pose);
+  }
+  return trajectory;
+}
+
+}  // namespace fslam::core

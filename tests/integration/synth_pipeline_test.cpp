@@ -1,0 +1,102 @@
+// The built-in default end to end through the real binary: synth -> info -> eval.
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "cli_runner.hpp"
+#include "fslam/core/dataset/dataset.hpp"
+
+namespace fslam {
+namespace {
+
+using test::fslam_bin;
+using test::run_command;
+
+class SynthPipeline : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = test::fresh_temp_dir("seq").string();
+    std::filesystem::remove_all(dir_);
+    std::string out, err;
+    status_ = run_command(fslam_bin() + " synth --out " + dir_ + " --frames 60 --seed 7", &out, &err);
+    log_ = out + err;
+  }
+  static void TearDownTestSuite() { std::filesystem::remove_all(dir_); }
+  void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
+  static std::string dir_;
+  static int status_;
+  static std::string log_;
+};
+std::string SynthPipeline::dir_;
+int SynthPipeline::status_ = -1;
+std::string SynthPipeline::log_;
+
+TEST_F(SynthPipeline, EvalOfGroundTruthAgainstItselfIsZeroOverSixtyPairs) {
+  std::string out, err;
+  const std::string gt = dir_ + "/groundtruth.txt";
+  const std::string json_path = dir_ + "/../self.json";
+  ASSERT_EQ(run_command(fslam_bin() + " eval --gt " + gt + " --est " + gt + " --json " + json_path,
+                        &out, &err),
+            0)
+      << out << err;
+  const nlohmann::json result = nlohmann::json::parse(std::ifstream(json_path));
+  EXPECT_EQ(result["ate"]["pairs"].get<int>(), 60);
+  EXPECT_LT(result["ate"]["rmse_m"].get<double>(), 1e-9);  // metres
+  EXPECT_LT(result["rpe"]["rotation_deg"]["max"].get<double>(), 1e-6);
+}
+
+TEST_F(SynthPipeline, TumReaderOpensTheSequenceWithLabelsAndGroundTruth) {
+  std::string why;
+  auto dataset = core::open_dataset(dir_, core::DatasetOptions{}, &why);
+  ASSERT_TRUE(dataset) << why;
+  EXPECT_EQ(dataset->kind(), "tum");
+  ASSERT_EQ(dataset->size(), 60u);
+  EXPECT_TRUE(dataset->has_ground_truth());
+  EXPECT_TRUE(dataset->has_labels());
+  EXPECT_DOUBLE_EQ(dataset->camera().fx, 525.0);
+  EXPECT_EQ(dataset->camera().width, 640);
+  core::RgbdFrame frame;
+  ASSERT_TRUE(dataset->load(59, &frame, &why)) << why;
+  EXPECT_NEAR(frame.timestamp, 59.0 / 30.0, 1e-6);  // seconds
+  ASSERT_TRUE(frame.T_world_camera_gt.has_value());
+  const core::Trajectory gt = dataset->ground_truth();
+  ASSERT_EQ(gt.size(), 60u);
+  EXPECT_LT((gt[59].T_world_camera.translation() - frame.T_world_camera_gt->translation()).norm(),
+            1e-6);  // metres
+  cv::Mat instance, cls;
+  ASSERT_TRUE(dataset->load_labels(59, &instance, &cls, &why)) << why;
+  EXPECT_EQ(instance.size(), frame.depth.size());
+}
+
+TEST_F(SynthPipeline, InfoSummarisesTheSequence) {
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " info --dataset " + dir_, &out, &err), 0) << out << err;
+  EXPECT_NE(out.find("tum"), std::string::npos) << out;
+  EXPECT_NE(out.find("60"), std::string::npos) << out;
+}
+
+TEST(Cli, HelpAndUsageErrors) {
+  std::string out, err;
+  EXPECT_EQ(run_command(fslam_bin() + " --help", &out, &err), 0);
+  for (const char* sub : {"synth", "eval", "info", "version"}) {
+    EXPECT_EQ(run_command(fslam_bin() + " " + sub + " --help", &out, &err), 0) << sub;
+    EXPECT_NE(out.find("--help"), std::string::npos) << sub;
+  }
+  EXPECT_NE(run_command(fslam_bin() + " no-such-command", &out, &err), 0);
+  EXPECT_FALSE(err.empty());
+  EXPECT_NE(run_command(fslam_bin() + " synth --out /proc/forbidden --frames 2", &out, &err), 0);
+  EXPECT_NE(err.find("error"), std::string::npos) << err;
+}
+
+TEST(Cli, VersionReportsTheBackendInOneLine) {
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " version", &out, &err), 0) << err;
+  EXPECT_NE(out.find("backend in use: "), std::string::npos) << out;
+  if (out.find("backend in use: cpu") != std::string::npos) {
+    EXPECT_NE(out.find("using the CPU backend"), std::string::npos) << out;
+  }
+}
+
+}  // namespace
+}  // namespace fslam
