@@ -108,6 +108,10 @@ double gap_threshold(const std::vector<double>& stamps) {
   return std::max(1.0, 10.0 * dt[dt.size() / 2]);  // seconds
 }
 
+// The colour scale spans at least 1 mm, so sub-millimetre noise (e.g. an estimate equal to the
+// ground truth) reads as "no error" instead of being stretched over the whole scale.
+constexpr double kMinColourRange = 1e-3;  // metres
+
 // Error unit for the colour bar, chosen so the ticks read as small whole numbers.
 struct ErrorUnit {
   double per_metre;
@@ -247,9 +251,12 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
   }
 
   // Title.
-  const ErrorUnit unit = error_unit(ate.max);
+  const double colour_max = std::max(ate.max, kMinColourRange);
+  const ErrorUnit unit = error_unit(colour_max);
   std::string title = config.title.empty() ? std::string() : config.title + "  -  ";
-  title += "ATE RMSE " + significant(ate.rmse * unit.per_metre, 4) + " " + unit.name + " (" +
+  // Below a nanometre the error is floating-point noise: say 0.
+  const std::string rmse_text = ate.rmse < 1e-9 ? "0" : significant(ate.rmse * unit.per_metre, 4);
+  title += "ATE RMSE " + rmse_text + " " + unit.name + " (" +
            to_string(ate.alignment) + ", " + std::to_string(ate.pairs) + " pairs)";
   double title_scale = 0.8;
   while (title_scale > 0.4 && text_size(title, title_scale, 2).width > img.cols - 40)
@@ -269,7 +276,6 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
   }
 
   const auto lut = colour_lut();
-  const double colour_max = ate.max > 0.0 ? ate.max : 1.0;
   std::vector<double> gt_stamps(gt.size()), pair_stamps(ate.pairs);
   for (std::size_t i = 0; i < gt.size(); ++i) gt_stamps[i] = gt[i].timestamp;
   for (std::size_t i = 0; i < ate.pairs; ++i) pair_stamps[i] = gt[ate.gt_indices[i]].timestamp;
@@ -318,7 +324,8 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
     cv::line(img, {bar_x + 22, y}, {bar_x + 28, y}, kInk, 1);
     text(img, fixed(t, tick_decimals(tick)), {bar_x + 32, y + 5}, 0.42);
   }
-  const std::string max_label = "max " + significant(max_display, 3);
+  const std::string max_label =
+      "max " + (ate.max < 1e-9 ? std::string("0") : significant(ate.max * unit.per_metre, 3));
   text(img, max_label, {bar_x - 8, bar_top + bar_h + 24}, 0.42);
 
   // Legend and axis definitions.
