@@ -1,5 +1,7 @@
 #include "fslam/core/dataset/dataset.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -8,15 +10,10 @@
 
 #include "fslam/core/dataset/frame_index.hpp"
 #include "fslam/core/dataset/readers.hpp"
-#include "fslam/core/dataset/text_tables.hpp"
+#include "fslam/core/io/text_tables.hpp"
 
 namespace fslam::core {
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 std::vector<std::string> split(const std::string& text, const std::string& separators) {
   std::vector<std::string> parts;

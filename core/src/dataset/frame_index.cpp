@@ -1,5 +1,7 @@
 #include "fslam/core/dataset/frame_index.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -17,11 +19,6 @@ namespace fslam::core {
 namespace {
 
 namespace fs = std::filesystem;
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 std::string size_text(int width, int height) {
   return std::to_string(width) + "x" + std::to_string(height);

@@ -4,9 +4,10 @@
 #include <opencv2/core.hpp>
 #include <opencv2/core/persistence.hpp>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/dataset/frame_index.hpp"
 #include "fslam/core/dataset/readers.hpp"
-#include "fslam/core/dataset/text_tables.hpp"
+#include "fslam/core/io/text_tables.hpp"
 
 namespace fslam::core {
 namespace {
@@ -18,11 +19,6 @@ constexpr double kReplicaFocal = 600.0;
 constexpr double kReplicaCx = 599.5;
 constexpr double kReplicaCy = 339.5;
 constexpr double kReplicaDepthScale = 6553.5;  // raw units per metre (65535 = 10 m)
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // {"camera": {"w", "h", "fx", "fy", "cx", "cy", "scale"}}; scale is optional.
 bool read_cam_params(const std::string& file, FrameIndex* index, std::string* why) {

@@ -2,9 +2,10 @@
 #include <cmath>
 #include <filesystem>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/dataset/frame_index.hpp"
 #include "fslam/core/dataset/readers.hpp"
-#include "fslam/core/dataset/text_tables.hpp"
+#include "fslam/core/io/text_tables.hpp"
 
 namespace fslam::core {
 namespace {
@@ -16,11 +17,6 @@ constexpr double kSevenScenesDepthScale = 1000.0;  // millimetres
 constexpr double kSevenScenesFocal = 585.0;
 constexpr double kSevenScenesCx = 320.0;
 constexpr double kSevenScenesCy = 240.0;
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 struct FrameFiles {
   std::string dir;

@@ -6,9 +6,10 @@
 #include <optional>
 #include <system_error>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/dataset/frame_index.hpp"
 #include "fslam/core/dataset/readers.hpp"
-#include "fslam/core/dataset/text_tables.hpp"
+#include "fslam/core/io/text_tables.hpp"
 #include "fslam/core/geometry/associate.hpp"
 #include "fslam/core/geometry/se3.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
@@ -21,11 +22,6 @@ namespace fs = std::filesystem;
 constexpr double kTumDepthScale = 5000.0;    // raw units per metre
 constexpr double kMaxAssociationGap = 0.02;  // s, associate.py's default
 constexpr double kMaxGroundTruthGap = 0.1;   // s, widest bracket we interpolate across
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // One line of rgb.txt or depth.txt.
 struct ListEntry {

@@ -1,5 +1,7 @@
 #include "fslam/core/eval/ate.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -8,11 +10,6 @@
 
 namespace fslam::core {
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // Index of the first pose with a non-finite timestamp or transform, or size() when all are finite.
 std::size_t first_non_finite(const Trajectory& trajectory) {

@@ -1,5 +1,7 @@
 #include "fslam/core/eval/image_metrics.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -11,11 +13,6 @@
 
 namespace fslam::core {
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 std::string describe(const cv::Mat& m) {
   return std::to_string(m.cols) + "x" + std::to_string(m.rows) + " " +

@@ -1,5 +1,7 @@
 #include "fslam/core/eval/rpe.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -7,11 +9,6 @@
 
 namespace fslam::core {
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
 

@@ -1,5 +1,7 @@
 #include "fslam/core/eval/trajectory_plot.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <iomanip>
@@ -12,11 +14,6 @@
 
 namespace fslam::core {
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // Drawing happens in OpenCV's BGR order; the result is converted to RGB at the end.
 const cv::Scalar kWhite(255, 255, 255);

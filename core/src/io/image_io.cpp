@@ -1,5 +1,7 @@
 #include "fslam/core/io/image_io.hpp"
 
+#include "fslam/core/error.hpp"
+
 #include <cmath>
 #include <memory>
 
@@ -8,11 +10,6 @@
 
 namespace fslam::core {
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // Opens `path` and reads every pixel in the file's own channel count as `type`.
 bool read_raw(const std::string& path, OIIO::TypeDesc type, int cv_depth, cv::Mat* out,

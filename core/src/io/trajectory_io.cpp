@@ -2,53 +2,29 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
-#include <fstream>
-#include <sstream>
 
 #include "fslam/core/geometry/se3.hpp"
+#include "fslam/core/io/text_tables.hpp"
 
 namespace fslam::core {
 
 bool read_tum_trajectory(const std::string& path, Trajectory* trajectory, std::string* why) {
-  auto fail = [&](const std::string& message) {
-    if (why) *why = message;
+  auto fail = [&](int line, const std::string& message) {
+    if (why) *why = path + ":" + std::to_string(line) + ": " + message;
     return false;
   };
-  std::ifstream in(path);
-  if (!in) return fail(path + ": cannot open trajectory file");
+  std::vector<NumberRow> rows;  // rejects non-numbers and non-finite values, naming file and line
+  if (!read_number_rows(path, &rows, why)) return false;
   Trajectory result;
-  std::string line;
-  int line_number = 0;
-  while (std::getline(in, line)) {
-    ++line_number;
-    for (char& c : line)
-      if (c == ',' || c == '\t' || c == '\r') c = ' ';
-    const auto first = line.find_first_not_of(' ');
-    if (first == std::string::npos || line[first] == '#') continue;
-    std::istringstream fields(line);
-    double v[8];
-    int n = 0;
-    std::string token;
-    while (n < 8 && fields >> token) {
-      char* end = nullptr;
-      v[n] = std::strtod(token.c_str(), &end);
-      if (end == token.c_str() || *end != '\0')
-        return fail(path + ":" + std::to_string(line_number) + ": '" + token +
-                    "' is not a number");
-      ++n;
-    }
-    if (n < 8)
-      return fail(path + ":" + std::to_string(line_number) +
-                  ": expected 'timestamp tx ty tz qx qy qz qw', found " + std::to_string(n) +
-                  " fields");
-    for (double x : v)
-      if (!std::isfinite(x))
-        return fail(path + ":" + std::to_string(line_number) + ": non-finite value");
+  result.reserve(rows.size());
+  for (const NumberRow& row : rows) {
+    const std::vector<double>& v = row.values;
+    if (v.size() < 8)
+      return fail(row.line, "expected 'timestamp tx ty tz qx qy qz qw', found " +
+                                std::to_string(v.size()) + " fields");
     const double qnorm = std::sqrt(v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]);
     if (std::abs(qnorm - 1.0) > 1e-2)
-      return fail(path + ":" + std::to_string(line_number) + ": quaternion norm " +
-                  std::to_string(qnorm) + " is not 1");
+      return fail(row.line, "quaternion norm " + std::to_string(qnorm) + " is not 1");
     result.push_back({v[0], from_tum({v[1], v[2], v[3], v[4], v[5], v[6], v[7]})});
   }
   *trajectory = std::move(result);

@@ -11,6 +11,7 @@
 #include <sstream>
 #include <string>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/io/image_io.hpp"
 #include "fslam/core/synth/synthetic_scene.hpp"
 
@@ -18,11 +19,6 @@ namespace fslam::core {
 namespace {
 
 namespace fs = std::filesystem;
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // Writes `text` to `path` in one go; false with a message on any error.
 bool write_text(const fs::path& path, const std::string& text, std::string* why) {

@@ -1,4 +1,6 @@
-#include "fslam/core/dataset/text_tables.hpp"
+#include "fslam/core/io/text_tables.hpp"
+
+#include "fslam/core/error.hpp"
 
 #include <cmath>
 #include <cstdlib>
@@ -6,15 +8,6 @@
 #include <sstream>
 
 namespace fslam::core {
-namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
-}  // namespace
-
 bool parse_double(const std::string& text, double* value) {
   if (text.empty()) return false;
   char* end = nullptr;
