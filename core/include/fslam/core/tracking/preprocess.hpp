@@ -1,0 +1,50 @@
+// Frame preprocessing for tracking: valid depth -> camera-frame points, downsampling, and
+// per-point covariances from neighbours (the source set of eq. gicp_sets).
+#pragma once
+
+#include <string>
+
+#include "fslam/core/geometry/rgbd_frame.hpp"
+#include "fslam/core/tracking/gaussian_points.hpp"
+
+namespace fslam::core {
+
+struct CovarianceConfig {
+  int min_neighbours = 6;       // fewer valid neighbours: the point is dropped
+  int knn = 10;                 // k for FLANN k-NN on unorganised (voxel-downsampled) points
+  int window_radius = 2;        // projective neighbourhood half-size, in lattice cells
+  float max_neighbour_distance = 0.1f;  // metres; farther neighbours (other surfaces) are ignored
+  // GICP's plane regularisation: eigenvalues replaced by (epsilon, 1, 1) * scale, so each
+  // covariance is a thin disc along the local surface (Segal et al.), well conditioned.
+  float plane_epsilon = 1e-3f;
+};
+
+struct PreprocessConfig {
+  float min_depth = 0.3f;   // metres; closer samples are missing (Kinect minimum range)
+  float max_depth = 6.0f;   // metres; farther samples are missing (noise grows with z^2)
+  int stride = 4;           // image-lattice stride: keep every stride-th pixel in u and v
+  float voxel_size = 0.0f;  // metres; > 0 additionally voxel-downsamples (one point per voxel)
+  CovarianceConfig covariance;
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// Per-frame statistics of preprocessing, for the tracker's quality report.
+struct PreprocessStats {
+  std::size_t valid_pixels = 0;     // depth samples inside [min_depth, max_depth]
+  std::size_t lattice_points = 0;   // after the lattice stride
+  std::size_t output_points = 0;    // after voxel downsampling and covariance estimation
+};
+
+// Camera-frame Gaussian points of `frame`. Missing depth is 0, NaN, inf or out of range (the
+// readers already map 0 and 65535 to 0). Returns false with `why` on bad input (sizes, intrinsics).
+bool preprocess_frame(const RgbdFrame& frame, const PreprocessConfig& config, GaussianPoints* out,
+                      PreprocessStats* stats, std::string* why);
+
+// Covariances of unorganised points from their k nearest neighbours (FLANN), regularised as in
+// CovarianceConfig; points with too few neighbours are removed (all arrays stay aligned).
+void estimate_covariances_knn(const CovarianceConfig& config, GaussianPoints* points);
+
+// The regularisation of CovarianceConfig applied to one raw sample covariance.
+Eigen::Matrix3f regularise_covariance(const Eigen::Matrix3f& raw, float plane_epsilon);
+
+}  // namespace fslam::core

@@ -1,0 +1,99 @@
+// Frame-to-model odometry: preprocess -> feature-guided GICP against the local map -> keyframe
+// decision (paper eq. keyframe_crit) -> local-map update, with a constant-velocity initial guess
+// and tracking-loss detection and recovery.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <string>
+
+#include "fslam/core/geometry/rgbd_frame.hpp"
+#include "fslam/core/tracking/gicp.hpp"
+#include "fslam/core/tracking/local_map.hpp"
+#include "fslam/core/tracking/preprocess.hpp"
+
+namespace fslam::core {
+
+// Eq. keyframe_crit: a keyframe when translation > tau_t, or rotation > tau_r, or the RMS GICP
+// residual > tau_sigma, measured against the last keyframe.
+struct KeyframeConfig {
+  double translation = 0.05;    // tau_t, metres
+  double rotation_deg = 3.0;    // tau_r, degrees
+  double rms_residual = 0.02;   // tau_sigma, metres
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// A frame is lost when too few source points find a correspondence or the solve is degenerate.
+struct TrackingLossConfig {
+  double min_inlier_ratio = 0.3;       // of the source points
+  std::size_t min_inliers = 200;
+  double max_condition_number = 1e6;   // of the GICP Hessian
+  int recovery_keyframes = 5;          // earlier keyframes tried when re-registering
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+struct TrackerConfig {
+  PreprocessConfig preprocess;
+  LocalMapConfig local_map;
+  GicpConfig gicp;
+  KeyframeConfig keyframe;
+  TrackingLossConfig loss;
+  bool constant_velocity = true;  // initial guess T_k = T_{k-1} (T_{k-2}^-1 T_{k-1})
+  bool parallel = false;          // TBB reduction instead of the serial one
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+enum class TrackingState : std::uint8_t { initialising, ok, lost, recovered };
+const char* to_string(TrackingState state);
+
+// Wall time of each stage of one frame, milliseconds.
+struct TrackingTimings {
+  double preprocess_ms = 0.0;
+  double registration_ms = 0.0;
+  double map_update_ms = 0.0;
+  double total_ms = 0.0;
+};
+
+struct TrackingResult {
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+  TrackingState state = TrackingState::initialising;
+  bool keyframe = false;
+  GicpResult gicp;              // quality of this frame's registration
+  PreprocessStats preprocess;
+  TrackingTimings timings;
+  std::string message;          // why a frame was lost or recovered, empty otherwise
+};
+
+class Tracker {
+ public:
+  explicit Tracker(const TrackerConfig& config);
+
+  // Tracks one frame. The first frame defines the world (its pose is T_world_camera_initial).
+  // Returns false with `why` only for bad input; tracking failure is a result state, not an error.
+  bool track(const RgbdFrame& frame, TrackingResult* result, std::string* why);
+
+  void set_initial_pose(const Eigen::Isometry3d& T_world_camera) { T_initial_ = T_world_camera; }
+  const LocalMap& local_map() const { return map_; }
+  std::size_t keyframe_count() const { return keyframes_.size(); }
+  void reset();
+
+ private:
+  struct Keyframe {
+    std::int64_t frame_id;
+    Eigen::Isometry3d T_world_camera;
+    GaussianPoints points_camera;  // kept for recovery re-registration
+  };
+  bool is_keyframe(const Eigen::Isometry3d& T_world_camera, const GicpResult& gicp) const;
+  bool is_lost(const GicpResult& gicp) const;
+  GicpResult register_frame(const GaussianPoints& source, const Eigen::Isometry3d& T_init) const;
+
+  TrackerConfig config_;
+  LocalMap map_;
+  Eigen::Isometry3d T_initial_ = Eigen::Isometry3d::Identity();
+  std::optional<Eigen::Isometry3d> T_last_;       // last tracked pose (world <- camera)
+  std::optional<Eigen::Isometry3d> T_velocity_;   // T_{k-2}^-1 T_{k-1}
+  std::deque<Keyframe> keyframes_;                // most recent last, bounded
+};
+
+}  // namespace fslam::core
