@@ -22,6 +22,11 @@ void add_version_command(CLI::App& root, CommandList* commands);
 void add_synth_command(CLI::App& root, CommandList* commands);
 void add_eval_command(CLI::App& root, CommandList* commands);
 void add_info_command(CLI::App& root, CommandList* commands);
+void add_track_command(CLI::App& root, CommandList* commands);
+
+// The q-quantile (0..1) of `values` by linear interpolation between order statistics (numpy's
+// default); 0 for an empty vector.
+double percentile(std::vector<double> values, double q);
 
 // Prints "fslam: error: <message>" to stderr and returns exit code 1.
 int fail(const std::string& message);

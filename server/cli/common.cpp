@@ -1,5 +1,6 @@
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -13,6 +14,15 @@ double now_s() {
   return duration<double>(steady_clock::now().time_since_epoch()).count();
 }
 }  // namespace
+
+double percentile(std::vector<double> values, double q) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const double position = q * static_cast<double>(values.size() - 1);
+  const std::size_t lo = static_cast<std::size_t>(position);
+  const std::size_t hi = std::min(lo + 1, values.size() - 1);
+  return values[lo] + (position - static_cast<double>(lo)) * (values[hi] - values[lo]);
+}
 
 int fail(const std::string& message) {
   std::cerr << "fslam: error: " << message << std::endl;

@@ -57,6 +57,7 @@ struct GicpResult {
   double cost = 0.0;                // final robustified objective
   Matrix6d H = Matrix6d::Zero();    // Gauss-Newton Hessian at the solution ([rho; phi] order)
   double condition_number = 0.0;    // lambda_max / lambda_min of H (inf if singular)
+  bool features_used = false;       // the feature term of eq. feat_gicp was active
 };
 
 // Any target: `const TargetPoint* nearest(const Eigen::Vector3f& q, float max_distance,

@@ -5,7 +5,6 @@
 
 #include <cstdint>
 #include <string>
-#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -38,10 +37,15 @@ class LocalMap {
 
   // Adds a keyframe's points (already in world coordinates) and drops voxels outside `radius`
   // of `camera_position_world`. Returns the number of points actually inserted.
+  // The map's feature_dim is set by the first insertion into an empty map; a later insertion
+  // with another feature_dim (features present vs absent included) is a programming error that
+  // is not fatal: the map drops every feature and tracks on geometry alone until it is empty.
   std::size_t insert(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world);
 
   // Nearest stored point to `query` (world) within `max_distance` metres; nullptr if none.
-  // Searches the query's voxel and its 26 neighbours. Thread-safe for concurrent readers.
+  // Searches the query's voxel and its 26 neighbours, so `max_distance` is clamped to
+  // voxel_size (beyond it the result would not be exact). Thread-safe for concurrent readers.
+  // The pointer stays valid until the next insert() or clear().
   const TargetPoint* nearest(const Eigen::Vector3f& query, float max_distance,
                              float* squared_distance = nullptr) const;
 
@@ -49,6 +53,10 @@ class LocalMap {
   std::size_t voxel_count() const { return voxels_.size(); }
   int feature_dim() const { return feature_dim_; }
   const float* feature(const TargetPoint& p) const { return features_.data() + p.feature_offset; }
+  // Feature rows held, live and dead (dropped voxels); compaction keeps it at most 2x size().
+  std::size_t feature_rows_stored() const {
+    return feature_dim_ > 0 ? features_.size() / static_cast<std::size_t>(feature_dim_) : 0;
+  }
   void clear();
   // Every stored point, for inspection, tests and visualisation.
   GaussianPoints points() const;
@@ -61,12 +69,40 @@ class LocalMap {
   struct VoxelKeyHash {
     std::size_t operator()(const VoxelKey& k) const;
   };
+  // A voxel's points, with their means also in a padded structure-of-arrays block that
+  // nearest() scans in vector lanes.
+  struct Voxel {
+    VoxelKey key;
+    std::uint32_t count = 0;          // points.size(), kept beside the block nearest() scans
+    std::uint32_t capacity = 0;       // lanes per coordinate block, a multiple of 4
+    std::vector<float> xyz;           // [3, capacity] metres, world: x | y | z; far past the points
+    std::vector<TargetPoint> points;  // [count <= max_points_per_voxel], the same order
+  };
+  // Open addressing with linear probing: no per-lookup modulo or node chasing (nearest() looks
+  // up a few voxels per query, ~200k queries per frame).
+  struct Slot {
+    VoxelKey key;
+    std::uint32_t voxel;  // index into voxels_, kEmptySlot when free
+  };
+  static constexpr std::uint32_t kEmptySlot = 0xFFFFFFFFu;
+
   VoxelKey key_of(const Eigen::Vector3f& p) const;
+  std::size_t home_slot(const VoxelKey& key) const;
+  const Voxel* find_voxel(const VoxelKey& key) const;
+  Voxel& find_or_add_voxel(const VoxelKey& key);
+  void rebuild_table(std::size_t min_voxels);
+  void add_point(Voxel* voxel, const TargetPoint& point) const;
+  void drop_voxels_outside(const Eigen::Vector3f& centre_world);
+  void compact_features();
 
   LocalMapConfig config_;
-  std::unordered_map<VoxelKey, std::vector<TargetPoint>, VoxelKeyHash> voxels_;
+  std::vector<Voxel> voxels_;    // in insertion order, dropped ones compacted away
+  std::vector<Slot> table_;      // power-of-two size, at most half full
+  int table_shift_ = 64;         // 64 - log2(table_.size()), for Fibonacci hashing
   std::vector<float> features_;  // rows of feature_dim_, referenced by TargetPoint::feature_offset
   int feature_dim_ = 0;
+  std::size_t dead_feature_rows_ = 0;  // rows of dropped voxels still in features_
+  float inv_voxel_size_ = 0.0f;        // 1 / voxel_size, 1/m
   std::size_t size_ = 0;
 };
 

@@ -14,15 +14,18 @@ struct CovarianceConfig {
   int knn = 10;                 // k for FLANN k-NN on unorganised (voxel-downsampled) points
   int window_radius = 2;        // projective neighbourhood half-size, in lattice cells
   float max_neighbour_distance = 0.1f;  // metres; farther neighbours (other surfaces) are ignored
-  // GICP's plane regularisation: eigenvalues replaced by (epsilon, 1, 1) * scale, so each
-  // covariance is a thin disc along the local surface (Segal et al.), well conditioned.
+  // GICP's plane regularisation: eigenvalues replaced by (epsilon, 1, 1), so each covariance is
+  // a thin unit disc along the local surface (Segal et al., small_gicp), well conditioned. The
+  // scale is 1 m^2 whatever the sample spread: eq. gicp_pose is invariant to a common scale.
   float plane_epsilon = 1e-3f;
+  bool is_valid(std::string* why = nullptr) const;
 };
 
 struct PreprocessConfig {
   float min_depth = 0.3f;   // metres; closer samples are missing (Kinect minimum range)
   float max_depth = 6.0f;   // metres; farther samples are missing (noise grows with z^2)
-  int stride = 4;           // image-lattice stride: keep every stride-th pixel in u and v
+  int stride = 8;           // image-lattice stride: keep every stride-th pixel in u and v (8 at
+                            // 640x480: same redkitchen ATE as 4 at ~40 % of the time, docs/tracking.md)
   float voxel_size = 0.0f;  // metres; > 0 additionally voxel-downsamples (one point per voxel)
   CovarianceConfig covariance;
   bool is_valid(std::string* why = nullptr) const;

@@ -1,0 +1,187 @@
+#include "fslam/core/tracking/tracker.hpp"
+
+#include <chrono>
+#include <cmath>
+
+#include "fslam/core/error.hpp"
+#include "fslam/core/tracking/gicp_impl.hpp"
+#include "fslam/core/tracking/kdtree_target.hpp"
+
+namespace fslam::core {
+namespace {
+
+double now_ms() {
+  using namespace std::chrono;
+  return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
+}
+
+constexpr double kDegToRad = M_PI / 180.0;
+// Re-registration after a loss searches wider: the prediction may be off by more than one frame.
+constexpr float kRecoveryDistanceFactor = 2.0f;
+
+}  // namespace
+
+bool KeyframeConfig::is_valid(std::string* why) const {
+  if (!(translation > 0.0)) return fail(why, "keyframe.translation must be > 0 m");
+  if (!(rotation_deg > 0.0)) return fail(why, "keyframe.rotation_deg must be > 0");
+  if (!(rms_residual > 0.0)) return fail(why, "keyframe.rms_residual must be > 0 m");
+  return true;
+}
+
+bool TrackingLossConfig::is_valid(std::string* why) const {
+  if (!(min_inlier_ratio >= 0.0 && min_inlier_ratio <= 1.0))
+    return fail(why, "loss.min_inlier_ratio must be in [0, 1]");
+  if (!(max_condition_number > 1.0)) return fail(why, "loss.max_condition_number must be > 1");
+  if (recovery_keyframes < 0) return fail(why, "loss.recovery_keyframes must be >= 0");
+  return true;
+}
+
+bool TrackerConfig::is_valid(std::string* why) const {
+  std::string reason;
+  if (!preprocess.is_valid(&reason)) return fail(why, "preprocess: " + reason);
+  if (!local_map.is_valid(&reason)) return fail(why, "local_map: " + reason);
+  if (!gicp.is_valid(&reason)) return fail(why, "gicp: " + reason);
+  if (!keyframe.is_valid(&reason)) return fail(why, reason);
+  if (!loss.is_valid(&reason)) return fail(why, reason);
+  if (local_map.voxel_size < gicp.max_correspondence_distance)
+    return fail(why, "local_map.voxel_size must be >= gicp.max_correspondence_distance "
+                     "(the neighbour search covers one voxel around the query)");
+  return true;
+}
+
+const char* to_string(TrackingState state) {
+  switch (state) {
+    case TrackingState::initialising: return "initialising";
+    case TrackingState::ok: return "ok";
+    case TrackingState::lost: return "lost";
+    case TrackingState::recovered: return "recovered";
+  }
+  return "unknown";
+}
+
+Tracker::Tracker(const TrackerConfig& config) : config_(config), map_(config.local_map) {}
+
+void Tracker::reset() {
+  map_.clear();
+  T_last_.reset();
+  T_velocity_.reset();
+  keyframes_.clear();
+}
+
+GicpResult Tracker::register_frame(const GaussianPoints& source,
+                                   const Eigen::Isometry3d& T_init) const {
+  if (config_.parallel) return align(source, map_, T_init, config_.gicp, TbbReduction{});
+  return align(source, map_, T_init, config_.gicp, SerialReduction{});
+}
+
+// Eq. keyframe_crit: ||t_c - t_k|| > tau_t or angle(R_c R_k^T) > tau_r or sigma_gicp > tau_sigma.
+bool Tracker::is_keyframe(const Eigen::Isometry3d& T_world_camera, const GicpResult& gicp) const {
+  const Eigen::Isometry3d& T_k = keyframes_.back().T_world_camera;
+  const double dt = (T_world_camera.translation() - T_k.translation()).norm();
+  const double dr = rotation_angle(T_world_camera.linear() * T_k.linear().transpose());
+  return dt > config_.keyframe.translation || dr > config_.keyframe.rotation_deg * kDegToRad ||
+         gicp.rms_residual > config_.keyframe.rms_residual;
+}
+
+bool Tracker::is_lost(const GicpResult& gicp) const {
+  return gicp.inliers < config_.loss.min_inliers ||
+         gicp.inlier_ratio < config_.loss.min_inlier_ratio ||
+         !(gicp.condition_number < config_.loss.max_condition_number) ||
+         !is_finite(gicp.T_target_source);
+}
+
+bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string* why) {
+  const double t0 = now_ms();
+  *result = TrackingResult{};
+
+  // 1. Preprocess: depth -> camera-frame Gaussian points (source set of eq. gicp_sets).
+  GaussianPoints source;
+  if (!preprocess_frame(frame, config_.preprocess, &source, &result->preprocess, why))
+    return false;
+  const double t1 = now_ms();
+  result->timings.preprocess_ms = t1 - t0;
+
+  auto add_keyframe = [&](const Eigen::Isometry3d& T_world_camera) {
+    map_.insert(transformed(source, T_world_camera), T_world_camera.translation().cast<float>());
+    keyframes_.push_back({frame.id, T_world_camera, source});
+    while (keyframes_.size() > static_cast<std::size_t>(config_.loss.recovery_keyframes) + 1)
+      keyframes_.pop_front();
+  };
+
+  // The first frame defines the world.
+  if (!T_last_) {
+    if (source.size() < config_.loss.min_inliers) {
+      result->state = TrackingState::lost;
+      result->message = "first frame has only " + std::to_string(source.size()) +
+                        " usable depth points; waiting for a better one";
+      result->timings.total_ms = now_ms() - t0;
+      return true;
+    }
+    T_last_ = T_initial_;
+    add_keyframe(T_initial_);
+    result->T_world_camera = T_initial_;
+    result->state = TrackingState::initialising;
+    result->keyframe = true;
+    result->timings.map_update_ms = now_ms() - t1;
+    result->timings.total_ms = now_ms() - t0;
+    return true;
+  }
+
+  // 2. Register against the local map from the constant-velocity prediction (eq. gicp_pose /
+  //    eq. feat_gicp when the map carries opacities and features).
+  const Eigen::Isometry3d T_predicted =
+      config_.constant_velocity && T_velocity_ ? *T_last_ * *T_velocity_ : *T_last_;
+  GicpResult gicp = register_frame(source, T_predicted);
+  result->state = TrackingState::ok;
+
+  // 3. Loss detection and recovery: re-register against earlier keyframes from the last good pose.
+  if (is_lost(gicp)) {
+    const std::string reason = "inliers " + std::to_string(gicp.inliers) + " (" +
+                               std::to_string(static_cast<int>(100.0 * gicp.inlier_ratio)) +
+                               " %), condition " + std::to_string(gicp.condition_number);
+    GicpConfig wide = config_.gicp;
+    wide.max_correspondence_distance *= kRecoveryDistanceFactor;
+    bool recovered = false;
+    for (auto kf = keyframes_.rbegin(); kf != keyframes_.rend() && !recovered; ++kf) {
+      KdTreeTarget target;
+      if (!target.build(transformed(kf->points_camera, kf->T_world_camera))) continue;
+      GicpResult retry = align(source, target, *T_last_, wide, SerialReduction{});
+      if (!is_lost(retry)) {
+        gicp = retry;
+        recovered = true;
+        result->state = TrackingState::recovered;
+        result->message = "lost (" + reason + "), recovered against keyframe " +
+                          std::to_string(kf->frame_id);
+      }
+    }
+    if (!recovered) {
+      // Report the prediction as the pose but never let a lost frame change the map or motion.
+      result->state = TrackingState::lost;
+      result->message = "lost: " + reason;
+      result->T_world_camera = T_predicted;
+      result->gicp = gicp;
+      result->timings.registration_ms = now_ms() - t1;
+      result->timings.total_ms = now_ms() - t0;
+      return true;
+    }
+  }
+  const double t2 = now_ms();
+  result->timings.registration_ms = t2 - t1;
+
+  const Eigen::Isometry3d T_world_camera = gicp.T_target_source;
+  T_velocity_ = T_last_->inverse() * T_world_camera;
+  T_last_ = T_world_camera;
+  result->T_world_camera = T_world_camera;
+  result->gicp = gicp;
+
+  // 4. Keyframe decision (eq. keyframe_crit); only keyframes grow the local map.
+  if (is_keyframe(T_world_camera, gicp)) {
+    add_keyframe(T_world_camera);
+    result->keyframe = true;
+  }
+  result->timings.map_update_ms = now_ms() - t2;
+  result->timings.total_ms = now_ms() - t0;
+  return true;
+}
+
+}  // namespace fslam::core
