@@ -103,12 +103,14 @@ run_demo() {
   "$fslam" version
   "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
   "$fslam" info --dataset "$OUT/sequence"
-  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/sequence/groundtruth.txt" \
+  "$fslam" track --dataset "$OUT/sequence" --out "$OUT/trajectory.txt"
+  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/trajectory.txt" \
     --json "$OUT/trajectory_eval.json" --plot "$OUT/trajectory.png"
   log "outputs"
   echo "sequence:        $OUT/sequence (TUM layout: rgb/, depth/, labels/, groundtruth.txt)"
-  echo "trajectory plot: $OUT/trajectory.png"
-  echo "evaluation:      $OUT/trajectory_eval.json"
+  echo "trajectory:      $OUT/trajectory.txt (tracked, TUM format)"
+  echo "trajectory plot: $OUT/trajectory.png (tracked vs ground truth)"
+  echo "evaluation:      $OUT/trajectory_eval.json (ATE, RPE)"
 }
 
 [[ $INSTALL -eq 1 ]] && install_packages
