@@ -1,8 +1,10 @@
 #include "fslam/core/io/trajectory_io.hpp"
 
 #include <cmath>
-#include <cstdio>
+#include <fstream>
+#include <iomanip>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/geometry/se3.hpp"
 #include "fslam/core/io/text_tables.hpp"
 
@@ -32,21 +34,17 @@ bool read_tum_trajectory(const std::string& path, Trajectory* trajectory, std::s
 }
 
 bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory, std::string* why) {
-  std::FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) {
-    if (why) *why = path + ": cannot open for writing";
-    return false;
-  }
-  std::fprintf(f, "# timestamp tx ty tz qx qy qz qw (camera-to-world)\n");
+  std::ofstream out(path);
+  if (!out) return fail(why, path + ": cannot open for writing");
+  out << "# timestamp tx ty tz qx qy qz qw (camera-to-world)\n" << std::fixed;
   for (const StampedPose& p : trajectory) {
     const auto t = to_tum(p.T_world_camera);
-    std::fprintf(f, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", p.timestamp, t[0], t[1], t[2],
-                 t[3], t[4], t[5], t[6]);
+    out << std::setprecision(6) << p.timestamp << std::setprecision(9);
+    for (double v : t) out << ' ' << v;
+    out << '\n';
   }
-  if (std::fclose(f) != 0) {
-    if (why) *why = path + ": write failed";
-    return false;
-  }
+  out.close();
+  if (!out) return fail(why, path + ": write failed");
   return true;
 }
 

@@ -4,10 +4,10 @@
 #include <tbb/parallel_for.h>
 
 #include <atomic>
-#include <cstdio>
 #include <filesystem>
 #include <limits>
 #include <mutex>
+#include <iomanip>
 #include <sstream>
 #include <string>
 
@@ -62,9 +62,9 @@ bool SynthOptions::is_valid(std::string* why) const {
 }
 
 std::string synth_timestamp(std::size_t frame) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.6f", static_cast<double>(frame) / kSynthFrameRate);
-  return buffer;
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(6) << static_cast<double>(frame) / kSynthFrameRate;
+  return s.str();
 }
 
 bool write_synthetic_sequence(const std::string& dir, const SynthOptions& options,
@@ -145,15 +145,11 @@ bool write_synthetic_sequence(const std::string& dir, const SynthOptions& option
             << "# instance_id class_id name\n";
   for (const SynthObject& o : room.objects)
     instances << o.instance_id << " " << static_cast<int>(o.class_id) << " " << o.name << "\n";
-  {
-    const PinholeCamera& c = options.camera;
-    char line[256];
-    std::snprintf(line, sizeof line, "%.10g %.10g %.10g %.10g %d %d\n", c.fx, c.fy, c.cx, c.cy,
-                  c.width, c.height);
-    intrinsics << "# pinhole intrinsics of rgb/ and depth/ (registered, no distortion)\n"
-               << "# fx fy cx cy width height\n"
-               << line;
-  }
+  const PinholeCamera& c = options.camera;
+  intrinsics << "# pinhole intrinsics of rgb/ and depth/ (registered, no distortion)\n"
+             << "# fx fy cx cy width height\n"
+             << std::setprecision(10) << c.fx << " " << c.fy << " " << c.cx << " " << c.cy << " "
+             << c.width << " " << c.height << "\n";
   return write_text(root / "rgb.txt", rgb.str(), why) &&
          write_text(root / "depth.txt", depth.str(), why) &&
          write_text(root / "classes.txt", classes.str(), why) &&
