@@ -25,7 +25,8 @@ Options:
   --threads N     thread count for the multi-threaded runs (default: nproc)
   --out DIR       output folder (default /tmp/fslam_tracking_bench); trajectories, logs,
                   eval JSONs and summary.txt land here
-  --skip-rgbd     leave out the Open3D RGB-D odometry (about 7 min for 600 frames on 2 cores)
+  --skip-rgbd     leave out the Open3D RGB-D odometry (about 3 min for 600 frames on 2 idle
+                  cores, twice that or more when the machine is shared)
   --skip-ours     leave out fslam track even where it exists
   --init MODE     peers' initial guess per frame: identity (default) or velocity (previous
                   relative motion)
@@ -148,7 +149,11 @@ sys.exit(rc)
 EOF
 }
 
-log "dataset $DATASET, frames $FRAMES, threads $THREADS, out $OUT, commit $(git -C "$REPO" rev-parse --short HEAD)"
+# Taken once: the tree may move on while a long run goes (a commit in between would otherwise
+# be printed in the table); '-dirty' marks uncommitted changes to tracked files.
+COMMIT="$(git -C "$REPO" rev-parse --short HEAD 2>/dev/null || echo unknown)"
+git -C "$REPO" diff --quiet HEAD 2>/dev/null || COMMIT="${COMMIT}-dirty"
+log "dataset $DATASET, frames $FRAMES, threads $THREADS, out $OUT, commit $COMMIT"
 log "load average before start: $(cut -d' ' -f1-3 /proc/loadavg)"
 
 # ---- peers --------------------------------------------------------------------------------
@@ -156,7 +161,7 @@ log "load average before start: $(cut -d' ' -f1-3 /proc/loadavg)"
 # command), so the peers run first. A 1-thread GICP run gives ours at 1 thread a like-for-like
 # peer; the RGB-D odometry runs only at --threads because it is the slow one.
 methods="rgbd,gicp"; [[ $SKIP_RGBD -eq 1 ]] && methods="gicp"
-log "peers: Open3D $methods, $THREADS threads (RGB-D odometry: about 0.3-0.7 s per frame)"
+log "peers: Open3D $methods, $THREADS threads (RGB-D odometry: about 0.3 s per frame on idle cores)"
 run_measured "peers_t${THREADS}" "$PY" "$PEERS" --dataset "$DATASET" --frames "$FRAMES" \
   --threads "$THREADS" --methods "$methods" --init "$INIT" --tag "_t${THREADS}" --out "$OUT"
 if [[ "$THREADS" -ne 1 ]]; then
@@ -192,7 +197,7 @@ for traj in "$OUT"/ours_t*.txt "$OUT"/rgbd_t*.txt "$OUT"/gicp_t*.txt; do
 done
 
 # ---- table ----------------------------------------------------------------------------------
-"$PY" - "$OUT" "$FRAMES" "$(git -C "$REPO" rev-parse --short HEAD)" <<'EOF' | tee "$OUT/summary.txt"
+"$PY" - "$OUT" "$FRAMES" "$COMMIT" <<'EOF' | tee "$OUT/summary.txt"
 import glob, json, os, re, sys
 out, frames, commit = sys.argv[1:4]
 
@@ -283,8 +288,12 @@ for lp in sorted(glob.glob(os.path.join(out, "ours_t*.log"))):
                ate=ev["ate"]["rmse_m"] * 100 if ev else None, med=med, p99=p99, clean="-",
                note="%s, busy-other %.2f%s" % (src, (run or {}).get("foreign_load") or 0.0,
                                                 "" if ev else ", NO TRAJECTORY"))
-    rows.insert(len(ours), row)
+    rows.append(row)
     ours.append(row)
+
+# ours first, then the peers by method and thread count
+order = {"fslam track": 0, "Open3D RGB-D odometry (hybrid)": 1, "Open3D GICP 2 cm": 2}
+rows.sort(key=lambda r: (order[r["label"]], r["threads"]))
 
 def f(v, fmt):
     return fmt % v if v is not None else "-"
