@@ -307,12 +307,12 @@ for r in rows:
                                            r["note"]))
 if ours:
     print("\nratios, ours / peer (below 1: ours is more accurate / faster)")
-    print("%-16s %-40s %10s %10s" % ("ours", "peer", "ATE ratio", "time ratio"))
+    print("%-16s %-46s %10s %10s" % ("ours", "peer", "ATE ratio", "time ratio"))
     for o in ours:
         for p in peers.values():
             ate = o["ate"] / p["ate"] if o["ate"] is not None and p["ate"] else None
             tim = o["med"] / p["med"] if o["med"] is not None and p["med"] else None
-            print("%-16s %-40s %10s %10s" % ("%d thread(s)" % o["threads"],
+            print("%-16s %-46s %10s %10s" % ("%d thread(s)" % o["threads"],
                   "%s, %d thread(s)" % (p["label"], p["threads"]), f(ate, "%.3f"),
                   f(tim, "%.3f")))
 else:
