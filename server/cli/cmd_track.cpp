@@ -1,12 +1,10 @@
 // `fslam track`: tracking alone (preprocess -> feature-guided GICP -> keyframes) over a dataset,
 // with a progress line, a per-stage timing summary and ATE when the dataset has ground truth.
-#include <algorithm>
 #include <chrono>
-#include <numeric>
-#include <stdexcept>
 #include <cstdio>
 #include <future>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -38,10 +36,9 @@ struct StageStats {
   void add(double v) { samples.push_back(v); }
   void print(const char* name) const {
     if (samples.empty()) return;
-    std::printf("  %-14s median %7.2f ms   p99 %7.2f ms   mean %7.2f ms\n", name,
-                percentile(samples, 0.5), percentile(samples, 0.99),
-                std::accumulate(samples.begin(), samples.end(), 0.0) /
-                    static_cast<double>(samples.size()));
+    const core::ErrorStats stats = core::summarize_errors(samples);  // median, mean
+    std::printf("  %-14s median %7.2f ms   p99 %7.2f ms   mean %7.2f ms\n", name, stats.median,
+                percentile(samples, 0.99), stats.mean);
   }
 };
 
