@@ -1,0 +1,477 @@
+// The CPU rasteriser's algorithm, templated on the scalar so that tests run it in double as the
+// finite-difference reference: project -> bin to 16x16 tiles -> depth sort -> composite
+// (paper eq. blending, proj), and the per-splat backward (paper: per-splat backward
+// parallelization, eq. transmittance_ckpt / transmittance_recover).
+// Internal to core/render and its tests; users go through fslam/core/render/rasterizer.hpp.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+
+#include "fslam/core/math/splat_math.hpp"
+
+namespace fslam::core::render_impl {
+
+constexpr int kTileSize = 16;                  // pixels per tile side
+constexpr int kCheckpointInterval = 32;        // P of eq. transmittance_ckpt, splats per block
+
+// Read-only view of a map's parameters (shapes as in GaussianMap).
+template <typename T>
+struct SplatScene {
+  std::size_t count = 0;
+  const T* means = nullptr;           // [N, 3]
+  const T* rotations = nullptr;       // [N, 4] w, x, y, z
+  const T* log_scales = nullptr;      // [N, 3]
+  const T* opacity_logits = nullptr;  // [N]
+  const T* sh = nullptr;              // [N, K, 3]
+  const T* features = nullptr;        // [N, D] (null when D = 0)
+  const T* filter_3d = nullptr;       // [N] (null = no filter)
+  int sh_degree = 0;
+  int feature_dim = 0;
+
+  int sh_stride() const { return 3 * (sh_degree + 1) * (sh_degree + 1); }
+  T filter(std::size_t i) const { return filter_3d != nullptr ? filter_3d[i] : T(0); }
+};
+
+// Output buffers of the forward pass; sizes from the camera. Any may be null except colour,
+// depth and alpha.
+template <typename T>
+struct RasterOutputs {
+  T* colour = nullptr;        // [3, H, W] composited colour plus T_final * background
+  T* depth = nullptr;         // [H, W] expected camera-plane depth (unnormalised, eq. D_exp)
+  T* median_depth = nullptr;  // [H, W] planar depth where accumulated opacity first exceeds 0.5
+  T* alpha = nullptr;         // [H, W] accumulated opacity 1 - T_final
+  T* features = nullptr;      // [D, H, W]
+};
+
+// Gradients of the loss w.r.t. the outputs; null = zero.
+template <typename T>
+struct RasterOutputGrads {
+  const T* colour = nullptr;
+  const T* depth = nullptr;
+  const T* median_depth = nullptr;
+  const T* alpha = nullptr;
+  const T* features = nullptr;
+};
+
+// Gradients w.r.t. the scene's parameters (same shapes), accumulated (+=) by the backward pass.
+template <typename T>
+struct SceneGrads {
+  T* means = nullptr;
+  T* rotations = nullptr;
+  T* log_scales = nullptr;
+  T* opacity_logits = nullptr;
+  T* sh = nullptr;
+  T* features = nullptr;
+  T* importance_rgb = nullptr;      // [N] sum over pixels of |dL_rgb / dalpha_i(x)| (eq. importance)
+  T* importance_feature = nullptr;  // [N] the same for the feature loss (eq. sem_importance)
+  T* mean2d_abs = nullptr;          // [N] |dL/d(u, v)| summed over pixels (densification cue)
+};
+
+// What the backward pass needs from the forward pass.
+template <typename T>
+struct RasterState {
+  int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
+  std::vector<math::ProjectedGaussian<T>> projected;  // [N]
+  std::vector<std::uint32_t> tile_offsets;            // [tiles + 1] into tile_ids
+  std::vector<std::uint32_t> tile_ids;                // Gaussian ids, front to back per tile
+  std::vector<std::int32_t> pixel_end;     // [H * W] exclusive end of the pixel's splats (tile list)
+  std::vector<std::int32_t> pixel_median;  // [H * W] tile-list index of the median splat, -1 none
+  std::size_t visible = 0;
+  std::uint64_t blend_steps = 0;  // splat-pixel pairs evaluated (alpha computed)
+};
+
+template <typename T>
+T scene_sh(const SplatScene<T>& s, std::size_t i, int k) {
+  return s.sh[i * s.sh_stride() + k];
+}
+
+// Projects every Gaussian and bins them into depth-sorted tile lists.
+template <typename T>
+void project_and_bin(const SplatScene<T>& scene, const math::SplatCamera<T>& cam,
+                     RasterState<T>* state) {
+  RasterState<T>& st = *state;
+  st.width = cam.width;
+  st.height = cam.height;
+  st.tiles_x = (cam.width + kTileSize - 1) / kTileSize;
+  st.tiles_y = (cam.height + kTileSize - 1) / kTileSize;
+  const std::size_t n = scene.count;
+  st.projected.assign(n, math::ProjectedGaussian<T>{});
+  std::vector<int> rect(4 * n, 0);  // [N, 4] tile x0, y0, x1, y1 (exclusive)
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      math::ProjectionTerms<T> terms;
+      math::ProjectedGaussian<T>& pg = st.projected[i];
+      if (!math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i,
+                                  scene.log_scales + 3 * i, scene.opacity_logits[i],
+                                  scene.filter(i), scene.sh + i * scene.sh_stride(),
+                                  scene.sh_degree, cam, &pg, &terms)) {
+        pg.radius = 0;
+        continue;
+      }
+      const T r_px = T(pg.radius);
+      const int x0 = static_cast<int>(std::floor((pg.u - r_px + T(0.5)) / kTileSize));
+      const int y0 = static_cast<int>(std::floor((pg.v - r_px + T(0.5)) / kTileSize));
+      const int x1 = static_cast<int>(std::floor((pg.u + r_px + T(0.5)) / kTileSize)) + 1;
+      const int y1 = static_cast<int>(std::floor((pg.v + r_px + T(0.5)) / kTileSize)) + 1;
+      rect[4 * i] = std::max(0, x0);
+      rect[4 * i + 1] = std::max(0, y0);
+      rect[4 * i + 2] = std::min(st.tiles_x, x1);
+      rect[4 * i + 3] = std::min(st.tiles_y, y1);
+    }
+  });
+  const int tiles = st.tiles_x * st.tiles_y;
+  st.tile_offsets.assign(tiles + 1, 0);
+  st.visible = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (st.projected[i].radius == 0) continue;
+    ++st.visible;
+    for (int ty = rect[4 * i + 1]; ty < rect[4 * i + 3]; ++ty)
+      for (int tx = rect[4 * i]; tx < rect[4 * i + 2]; ++tx) ++st.tile_offsets[ty * st.tiles_x + tx + 1];
+  }
+  for (int t = 0; t < tiles; ++t) st.tile_offsets[t + 1] += st.tile_offsets[t];
+  st.tile_ids.resize(st.tile_offsets[tiles]);
+  std::vector<std::uint32_t> cursor(st.tile_offsets.begin(), st.tile_offsets.end() - 1);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (st.projected[i].radius == 0) continue;
+    for (int ty = rect[4 * i + 1]; ty < rect[4 * i + 3]; ++ty)
+      for (int tx = rect[4 * i]; tx < rect[4 * i + 2]; ++tx)
+        st.tile_ids[cursor[ty * st.tiles_x + tx]++] = static_cast<std::uint32_t>(i);
+  }
+  // Front to back by the depth of the mean; ties by id so that the order is deterministic.
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiles), [&](const auto& r) {
+    for (int t = r.begin(); t != r.end(); ++t) {
+      std::sort(st.tile_ids.begin() + st.tile_offsets[t], st.tile_ids.begin() + st.tile_offsets[t + 1],
+                [&](std::uint32_t a, std::uint32_t b) {
+                  const T da = st.projected[a].depth, db = st.projected[b].depth;
+                  return da < db || (da == db && a < b);
+                });
+    }
+  });
+}
+
+// Forward pass (eq. blending with the camera-plane depth D_i(x)).
+template <typename T>
+void rasterize_forward(const SplatScene<T>& scene, const math::SplatCamera<T>& cam,
+                       const T background[3], bool render_features, RasterState<T>* state,
+                       const RasterOutputs<T>& out) {
+  project_and_bin(scene, cam, state);
+  RasterState<T>& st = *state;
+  const int W = cam.width, H = cam.height, D = render_features ? scene.feature_dim : 0;
+  const std::size_t plane = static_cast<std::size_t>(W) * H;
+  st.pixel_end.assign(plane, 0);
+  st.pixel_median.assign(plane, -1);
+  const int tiles = st.tiles_x * st.tiles_y;
+  tbb::enumerable_thread_specific<std::uint64_t> steps(0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiles), [&](const auto& r) {
+    std::vector<T> feat(static_cast<std::size_t>(D));
+    std::uint64_t& step_count = steps.local();
+    for (int t = r.begin(); t != r.end(); ++t) {
+      const int tx = t % st.tiles_x, ty = t / st.tiles_x;
+      const std::uint32_t begin = st.tile_offsets[t], end = st.tile_offsets[t + 1];
+      for (int py = ty * kTileSize; py < std::min(H, (ty + 1) * kTileSize); ++py) {
+        for (int px = tx * kTileSize; px < std::min(W, (tx + 1) * kTileSize); ++px) {
+          const std::size_t pix = static_cast<std::size_t>(py) * W + px;
+          T Tr = T(1), colour[3] = {T(0), T(0), T(0)}, depth = T(0), median = T(0);
+          std::fill(feat.begin(), feat.end(), T(0));
+          std::int32_t median_index = -1;
+          std::uint32_t j = begin;
+          for (; j < end; ++j) {
+            const std::uint32_t id = st.tile_ids[j];
+            const math::ProjectedGaussian<T>& g = st.projected[id];
+            ++step_count;
+            T gauss;
+            const T alpha = math::splat_alpha(g, T(px), T(py), &gauss);
+            if (alpha == T(0)) continue;
+            const T next = Tr * (T(1) - alpha);
+            if (next < T(math::kTransmittanceMin)) break;
+            const T w = alpha * Tr;
+            const T d = math::splat_planar_depth(g, T(px), T(py));
+            colour[0] += w * g.colour[0];
+            colour[1] += w * g.colour[1];
+            colour[2] += w * g.colour[2];
+            depth += w * d;
+            if (D > 0) {
+              const T* f = scene.features + static_cast<std::size_t>(id) * scene.feature_dim;
+              for (int c = 0; c < D; ++c) feat[c] += w * f[c];
+            }
+            if (median_index < 0 && next < T(0.5)) {
+              median_index = static_cast<std::int32_t>(j - begin);
+              median = d;
+            }
+            Tr = next;
+          }
+          st.pixel_end[pix] = static_cast<std::int32_t>(j - begin);
+          st.pixel_median[pix] = median_index;
+          for (int c = 0; c < 3; ++c) out.colour[c * plane + pix] = colour[c] + Tr * background[c];
+          out.depth[pix] = depth;
+          out.alpha[pix] = T(1) - Tr;
+          if (out.median_depth != nullptr) out.median_depth[pix] = median;
+          if (out.features != nullptr)
+            for (int c = 0; c < D; ++c) out.features[c * plane + pix] = feat[c];
+        }
+      }
+    }
+  });
+  st.blend_steps = 0;
+  for (std::uint64_t s : steps) st.blend_steps += s;
+}
+
+// Per-Gaussian 2D gradients as one thread accumulates them: [N, stride] with
+// u, v, conic[3], opacity, depth, plane[2], colour[3], importance rgb, feature, then D features.
+constexpr int kGrad2dFixed = 14;
+
+// Backward pass. Each tile is processed splat by splat (outer loop) over its pixels (inner loop),
+// rolling each pixel's transmittance and prefix sums forward: the state at the start of every
+// block of kCheckpointInterval splats is the checkpoint T*_{kP} of eq. transmittance_ckpt, and
+// T_i is recovered from it as in eq. transmittance_recover. Gradients go to the worker thread's
+// own buffer (no atomics, no locks) and the buffers are reduced once at the end.
+template <typename T>
+void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& cam,
+                        const T background[3], bool render_features, const RasterState<T>& st,
+                        const RasterOutputs<T>& out, const RasterOutputGrads<T>& grad_out,
+                        const SceneGrads<T>& grads) {
+  const int W = cam.width, H = cam.height, D = render_features ? scene.feature_dim : 0;
+  const std::size_t plane = static_cast<std::size_t>(W) * H;
+  const std::size_t n = scene.count;
+  const int stride = kGrad2dFixed + D;
+  const int channels = 4 + D;  // colour 3, depth 1, features D: the prefix sums per pixel
+  tbb::enumerable_thread_specific<std::vector<T>> buffers(
+      [&] { return std::vector<T>(n * stride, T(0)); });
+  const int tiles = st.tiles_x * st.tiles_y;
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiles), [&](const auto& r) {
+    std::vector<T>& acc = buffers.local();
+    constexpr int kPixels = kTileSize * kTileSize;
+    std::vector<T> trans(kPixels), prefix(static_cast<std::size_t>(kPixels) * channels);
+    std::vector<T> total(static_cast<std::size_t>(kPixels) * channels);
+    std::vector<T> splat_grad(stride);
+    for (int t = r.begin(); t != r.end(); ++t) {
+      const int tx = t % st.tiles_x, ty = t / st.tiles_x;
+      const std::uint32_t begin = st.tile_offsets[t], end = st.tile_offsets[t + 1];
+      if (begin == end) continue;
+      const int x0 = tx * kTileSize, y0 = ty * kTileSize;
+      const int tw = std::min(W, x0 + kTileSize) - x0, th = std::min(H, y0 + kTileSize) - y0;
+      // Per pixel: T_final and the final composited values without the background.
+      std::fill(trans.begin(), trans.end(), T(1));
+      std::fill(prefix.begin(), prefix.end(), T(0));
+      int max_end = 0;
+      for (int ly = 0; ly < th; ++ly)
+        for (int lx = 0; lx < tw; ++lx) {
+          const int lp = ly * kTileSize + lx;
+          const std::size_t pix = static_cast<std::size_t>(y0 + ly) * W + x0 + lx;
+          const T t_final = T(1) - out.alpha[pix];
+          T* tot = total.data() + static_cast<std::size_t>(lp) * channels;
+          for (int c = 0; c < 3; ++c) tot[c] = out.colour[c * plane + pix] - t_final * background[c];
+          tot[3] = out.depth[pix];
+          for (int c = 0; c < D; ++c) tot[4 + c] = out.features[c * plane + pix];
+          max_end = std::max(max_end, st.pixel_end[pix]);
+        }
+      for (int j = 0; j < max_end; ++j) {
+        const std::uint32_t id = st.tile_ids[begin + j];
+        const math::ProjectedGaussian<T>& g = st.projected[id];
+        const T* f = D > 0 ? scene.features + static_cast<std::size_t>(id) * scene.feature_dim
+                           : nullptr;
+        math::ProjectedGradient<T> pg{};
+        T imp_rgb = T(0), imp_feat = T(0);
+        std::fill(splat_grad.begin() + kGrad2dFixed, splat_grad.end(), T(0));
+        bool touched = false;
+        for (int ly = 0; ly < th; ++ly) {
+          for (int lx = 0; lx < tw; ++lx) {
+            const std::size_t pix = static_cast<std::size_t>(y0 + ly) * W + x0 + lx;
+            if (j >= st.pixel_end[pix]) continue;
+            const int px = x0 + lx, py = y0 + ly;
+            T gauss;
+            const T alpha = math::splat_alpha(g, T(px), T(py), &gauss);
+            if (alpha == T(0)) continue;
+            touched = true;
+            const int lp = ly * kTileSize + lx;
+            const T Ti = trans[lp];
+            const T w = alpha * Ti;
+            const T one_minus = T(1) - alpha;
+            const T t_final = T(1) - out.alpha[pix];
+            T* pre = prefix.data() + static_cast<std::size_t>(lp) * channels;
+            const T* tot = total.data() + static_cast<std::size_t>(lp) * channels;
+            const T d = math::splat_planar_depth(g, T(px), T(py));
+            // dL/dalpha_i = sum_ch g_ch (T_i v_ch - S_ch / (1 - alpha_i)) with S the part
+            // composited behind splat i, plus the background and accumulated-opacity terms.
+            T g_alpha_rgb = T(0), g_alpha_feat = T(0), g_alpha_other = T(0);
+            if (grad_out.colour != nullptr) {
+              for (int c = 0; c < 3; ++c) {
+                const T gc = grad_out.colour[c * plane + pix];
+                const T after = pre[c] + w * g.colour[c];
+                pg.colour[c] += w * gc;
+                g_alpha_rgb += gc * (Ti * g.colour[c] - (tot[c] - after) / one_minus -
+                                     background[c] * t_final / one_minus);
+              }
+            }
+            T g_depth_here = T(0);
+            if (grad_out.depth != nullptr) {
+              const T gd = grad_out.depth[pix];
+              const T after = pre[3] + w * d;
+              g_depth_here += w * gd;
+              g_alpha_other += gd * (Ti * d - (tot[3] - after) / one_minus);
+            }
+            if (grad_out.median_depth != nullptr && st.pixel_median[pix] == j) {
+              g_depth_here += grad_out.median_depth[pix];
+            }
+            if (grad_out.alpha != nullptr) {
+              g_alpha_other += grad_out.alpha[pix] * t_final / one_minus;
+            }
+            if (grad_out.features != nullptr && D > 0) {
+              for (int c = 0; c < D; ++c) {
+                const T gf = grad_out.features[c * plane + pix];
+                const T after = pre[4 + c] + w * f[c];
+                splat_grad[kGrad2dFixed + c] += w * gf;
+                g_alpha_feat += gf * (Ti * f[c] - (tot[4 + c] - after) / one_minus);
+              }
+            }
+            imp_rgb += std::abs(g_alpha_rgb);
+            imp_feat += std::abs(g_alpha_feat);
+            const T g_alpha = g_alpha_rgb + g_alpha_feat + g_alpha_other;
+            math::splat_pixel_backward(g, T(px), T(py), alpha, gauss, g_alpha, g_depth_here, &pg);
+            // Roll the pixel's state past splat i (the recovery of eq. transmittance_recover).
+            for (int c = 0; c < 3; ++c) pre[c] += w * g.colour[c];
+            pre[3] += w * d;
+            for (int c = 0; c < D; ++c) pre[4 + c] += w * f[c];
+            trans[lp] = Ti * one_minus;
+          }
+        }
+        if (!touched) continue;
+        T* a = acc.data() + static_cast<std::size_t>(id) * stride;
+        a[0] += pg.u;
+        a[1] += pg.v;
+        a[2] += pg.conic[0];
+        a[3] += pg.conic[1];
+        a[4] += pg.conic[2];
+        a[5] += pg.opacity;
+        a[6] += pg.depth;
+        a[7] += pg.plane[0];
+        a[8] += pg.plane[1];
+        a[9] += pg.colour[0];
+        a[10] += pg.colour[1];
+        a[11] += pg.colour[2];
+        a[12] += imp_rgb;
+        a[13] += imp_feat;
+        for (int c = 0; c < D; ++c) a[kGrad2dFixed + c] += splat_grad[kGrad2dFixed + c];
+      }
+    }
+  });
+
+  // Reduce the thread buffers once, then chain each Gaussian's 2D gradient to its parameters.
+  std::vector<std::vector<T>*> parts;
+  for (auto& b : buffers) parts.push_back(&b);
+  const int sh_stride = scene.sh_stride();
+  const int K = (scene.sh_degree + 1) * (scene.sh_degree + 1);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const auto& r) {
+    std::vector<T> sum(stride);
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      if (st.projected[i].radius == 0) continue;
+      std::fill(sum.begin(), sum.end(), T(0));
+      for (const std::vector<T>* part : parts)
+        for (int k = 0; k < stride; ++k) sum[k] += (*part)[i * stride + k];
+      math::ProjectedGradient<T> pg;
+      pg.u = sum[0];
+      pg.v = sum[1];
+      pg.conic[0] = sum[2];
+      pg.conic[1] = sum[3];
+      pg.conic[2] = sum[4];
+      pg.opacity = sum[5];
+      pg.depth = sum[6];
+      pg.plane[0] = sum[7];
+      pg.plane[1] = sum[8];
+      pg.colour[0] = sum[9];
+      pg.colour[1] = sum[10];
+      pg.colour[2] = sum[11];
+      math::ProjectedGaussian<T> projected;
+      math::ProjectionTerms<T> terms;
+      math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
+                             scene.opacity_logits[i], scene.filter(i), scene.sh + i * sh_stride,
+                             scene.sh_degree, cam, &projected, &terms);
+      math::GaussianParamGradient<T> pgrad;
+      math::project_gaussian_backward(scene.rotations + 4 * i, scene.filter(i),
+                                      scene.sh + i * sh_stride, scene.sh_degree, cam, projected,
+                                      terms, pg, &pgrad);
+      for (int k = 0; k < 3; ++k) grads.means[3 * i + k] += pgrad.mean[k];
+      for (int k = 0; k < 4; ++k) grads.rotations[4 * i + k] += pgrad.quat[k];
+      for (int k = 0; k < 3; ++k) grads.log_scales[3 * i + k] += pgrad.log_scale[k];
+      grads.opacity_logits[i] += pgrad.opacity_logit;
+      for (int k = 0; k < 3 * K; ++k) grads.sh[i * sh_stride + k] += pgrad.sh[k];
+      if (grads.features != nullptr)
+        for (int c = 0; c < D; ++c)
+          grads.features[i * scene.feature_dim + c] += sum[kGrad2dFixed + c];
+      if (grads.importance_rgb != nullptr) grads.importance_rgb[i] += sum[12];
+      if (grads.importance_feature != nullptr) grads.importance_feature[i] += sum[13];
+      if (grads.mean2d_abs != nullptr) grads.mean2d_abs[i] += std::sqrt(sum[0] * sum[0] + sum[1] * sum[1]);
+    }
+  });
+}
+
+// The straightforward reference: every pixel walks every visible Gaussian, globally sorted by
+// depth, with no tiles. Same per-pixel math and order, so it must equal rasterize_forward; it is
+// the baseline of the throughput benchmark. Returns the splat-pixel pairs evaluated.
+template <typename T>
+std::uint64_t rasterize_reference(const SplatScene<T>& scene, const math::SplatCamera<T>& cam,
+                                  const T background[3], const RasterOutputs<T>& out) {
+  const std::size_t n = scene.count;
+  std::vector<math::ProjectedGaussian<T>> projected(n);
+  std::vector<std::uint32_t> order;
+  for (std::size_t i = 0; i < n; ++i) {
+    math::ProjectionTerms<T> terms;
+    if (math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i,
+                               scene.log_scales + 3 * i, scene.opacity_logits[i], scene.filter(i),
+                               scene.sh + i * scene.sh_stride(), scene.sh_degree, cam,
+                               &projected[i], &terms)) {
+      order.push_back(static_cast<std::uint32_t>(i));
+    }
+  }
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return projected[a].depth < projected[b].depth ||
+           (projected[a].depth == projected[b].depth && a < b);
+  });
+  const int W = cam.width, H = cam.height, D = scene.feature_dim;
+  const std::size_t plane = static_cast<std::size_t>(W) * H;
+  std::uint64_t steps = 0;
+  std::vector<T> feat(static_cast<std::size_t>(D));
+  for (int py = 0; py < H; ++py) {
+    for (int px = 0; px < W; ++px) {
+      const std::size_t pix = static_cast<std::size_t>(py) * W + px;
+      T Tr = T(1), colour[3] = {T(0), T(0), T(0)}, depth = T(0), median = T(0);
+      bool has_median = false;
+      std::fill(feat.begin(), feat.end(), T(0));
+      for (std::uint32_t id : order) {
+        const math::ProjectedGaussian<T>& g = projected[id];
+        ++steps;
+        T gauss;
+        const T alpha = math::splat_alpha(g, T(px), T(py), &gauss);
+        if (alpha == T(0)) continue;
+        const T next = Tr * (T(1) - alpha);
+        if (next < T(math::kTransmittanceMin)) break;
+        const T w = alpha * Tr;
+        const T d = math::splat_planar_depth(g, T(px), T(py));
+        for (int c = 0; c < 3; ++c) colour[c] += w * g.colour[c];
+        depth += w * d;
+        for (int c = 0; c < D; ++c) feat[c] += w * scene.features[static_cast<std::size_t>(id) * D + c];
+        if (!has_median && next < T(0.5)) {
+          has_median = true;
+          median = d;
+        }
+        Tr = next;
+      }
+      for (int c = 0; c < 3; ++c) out.colour[c * plane + pix] = colour[c] + Tr * background[c];
+      out.depth[pix] = depth;
+      out.alpha[pix] = T(1) - Tr;
+      if (out.median_depth != nullptr) out.median_depth[pix] = median;
+      if (out.features != nullptr)
+        for (int c = 0; c < D; ++c) out.features[c * plane + pix] = feat[c];
+    }
+  }
+  return steps;
+}
+
+}  // namespace fslam::core::render_impl

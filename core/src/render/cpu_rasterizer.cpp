@@ -1,0 +1,162 @@
+#include <cmath>
+
+#include "fslam/core/error.hpp"
+#include "fslam/core/render/rasterize_impl.hpp"
+#include "fslam/core/render/rasterizer.hpp"
+
+namespace fslam::core {
+
+struct RenderBackwardState {
+  render_impl::RasterState<float> raster;
+};
+
+double RenderStats::mean_splats_per_pixel() const {
+  return pixels > 0 ? static_cast<double>(blend_steps) / static_cast<double>(pixels) : 0.0;
+}
+
+void GaussianGradients::reset(const GaussianMap& map) {
+  const std::size_t n = map.size();
+  means.assign(3 * n, 0.0f);
+  rotations.assign(4 * n, 0.0f);
+  log_scales.assign(3 * n, 0.0f);
+  opacity_logits.assign(n, 0.0f);
+  sh.assign(n * static_cast<std::size_t>(map.sh_per_gaussian()), 0.0f);
+  features.assign(n * static_cast<std::size_t>(map.feature_dim), 0.0f);
+  importance_rgb.assign(n, 0.0f);
+  importance_feature.assign(n, 0.0f);
+  mean2d_abs.assign(n, 0.0f);
+}
+
+namespace {
+
+render_impl::SplatScene<float> scene_of(const GaussianMap& map) {
+  render_impl::SplatScene<float> s;
+  s.count = map.size();
+  s.means = map.means.data();
+  s.rotations = map.rotations.data();
+  s.log_scales = map.log_scales.data();
+  s.opacity_logits = map.opacity_logits.data();
+  s.sh = map.sh.data();
+  s.features = map.feature_dim > 0 ? map.features.data() : nullptr;
+  s.filter_3d = map.filter_3d.empty() ? nullptr : map.filter_3d.data();
+  s.sh_degree = map.sh_degree;
+  s.feature_dim = map.feature_dim;
+  return s;
+}
+
+bool camera_of(const RenderView& view, const RenderSettings& settings,
+               math::SplatCamera<float>* cam, std::string* why) {
+  std::string reason;
+  if (!view.camera.is_valid(&reason)) return fail(why, "render view: " + reason);
+  if (!view.T_camera_world.matrix().allFinite()) return fail(why, "render view: non-finite pose");
+  if (!(settings.near_plane > 0.0f)) return fail(why, "render settings: near plane must be > 0");
+  const Eigen::Matrix3d R = view.T_camera_world.rotation();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) cam->R[3 * r + c] = static_cast<float>(R(r, c));
+    cam->t[r] = static_cast<float>(view.T_camera_world.translation()[r]);
+  }
+  cam->fx = static_cast<float>(view.camera.fx);
+  cam->fy = static_cast<float>(view.camera.fy);
+  cam->cx = static_cast<float>(view.camera.cx);
+  cam->cy = static_cast<float>(view.camera.cy);
+  cam->near_plane = settings.near_plane;
+  cam->width = view.camera.width;
+  cam->height = view.camera.height;
+  return true;
+}
+
+class CpuRasterizer final : public Rasterizer {
+ public:
+  std::string name() const override { return "cpu"; }
+
+  bool forward(const GaussianMap& map, const RenderView& view, const RenderSettings& settings,
+               RenderResult* result, std::string* why) const override {
+    math::SplatCamera<float> cam;
+    if (!camera_of(view, settings, &cam, why)) return false;
+    std::string reason;
+    if (!map.is_consistent(&reason)) return fail(why, "map: " + reason);
+    const int W = cam.width, H = cam.height;
+    const int D = settings.features ? map.feature_dim : 0;
+    result->colour = PlanarImage(W, H, 3);
+    result->depth = PlanarImage(W, H, 1);
+    result->median_depth = PlanarImage(W, H, 1);
+    result->alpha = PlanarImage(W, H, 1);
+    result->features = D > 0 ? PlanarImage(W, H, D) : PlanarImage();
+    auto state = std::make_shared<RenderBackwardState>();
+    render_impl::RasterOutputs<float> out;
+    out.colour = result->colour.data.data();
+    out.depth = result->depth.data.data();
+    out.median_depth = result->median_depth.data.data();
+    out.alpha = result->alpha.data.data();
+    out.features = D > 0 ? result->features.data.data() : nullptr;
+    render_impl::rasterize_forward(scene_of(map), cam, settings.background.data(), D > 0,
+                                   &state->raster, out);
+    result->stats.gaussians = map.size();
+    result->stats.pixels = static_cast<std::size_t>(W) * H;
+    result->stats.visible = state->raster.visible;
+    result->stats.tile_entries = state->raster.tile_ids.size();
+    result->stats.blend_steps = state->raster.blend_steps;
+    result->backward_state = std::move(state);
+    return true;
+  }
+
+  bool backward(const GaussianMap& map, const RenderView& view, const RenderSettings& settings,
+                const RenderResult& result, const RenderGradients& output_grads,
+                GaussianGradients* grads, std::string* why) const override {
+    math::SplatCamera<float> cam;
+    if (!camera_of(view, settings, &cam, why)) return false;
+    if (!result.backward_state) return fail(why, "backward: no forward state");
+    const auto& st = result.backward_state->raster;
+    if (st.projected.size() != map.size() || st.width != cam.width || st.height != cam.height) {
+      return fail(why, "backward: the forward pass was for another map or view");
+    }
+    const int D = settings.features ? map.feature_dim : 0;
+    if (grads->opacity_logits.size() != map.size()) grads->reset(map);
+    auto check = [&](const PlanarImage& g, const PlanarImage& like, const char* name) {
+      if (g.empty()) return true;
+      if (!g.same_shape(like)) {
+        return fail(why, std::string("backward: gradient of ") + name + " has the wrong shape");
+      }
+      return true;
+    };
+    if (!check(output_grads.colour, result.colour, "colour") ||
+        !check(output_grads.depth, result.depth, "depth") ||
+        !check(output_grads.median_depth, result.median_depth, "median depth") ||
+        !check(output_grads.alpha, result.alpha, "alpha") ||
+        (D > 0 && !check(output_grads.features, result.features, "features"))) {
+      return false;
+    }
+    render_impl::RasterOutputs<float> out;
+    out.colour = const_cast<float*>(result.colour.data.data());
+    out.depth = const_cast<float*>(result.depth.data.data());
+    out.median_depth = const_cast<float*>(result.median_depth.data.data());
+    out.alpha = const_cast<float*>(result.alpha.data.data());
+    out.features = D > 0 ? const_cast<float*>(result.features.data.data()) : nullptr;
+    auto ptr = [](const PlanarImage& g) { return g.empty() ? nullptr : g.data.data(); };
+    render_impl::RasterOutputGrads<float> gout;
+    gout.colour = ptr(output_grads.colour);
+    gout.depth = ptr(output_grads.depth);
+    gout.median_depth = ptr(output_grads.median_depth);
+    gout.alpha = ptr(output_grads.alpha);
+    gout.features = D > 0 ? ptr(output_grads.features) : nullptr;
+    render_impl::SceneGrads<float> g;
+    g.means = grads->means.data();
+    g.rotations = grads->rotations.data();
+    g.log_scales = grads->log_scales.data();
+    g.opacity_logits = grads->opacity_logits.data();
+    g.sh = grads->sh.data();
+    g.features = D > 0 ? grads->features.data() : nullptr;
+    g.importance_rgb = grads->importance_rgb.data();
+    g.importance_feature = grads->importance_feature.data();
+    g.mean2d_abs = grads->mean2d_abs.data();
+    render_impl::rasterize_backward(scene_of(map), cam, settings.background.data(), D > 0, st, out,
+                                    gout, g);
+    return true;
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<Rasterizer> make_cpu_rasterizer() { return std::make_unique<CpuRasterizer>(); }
+
+}  // namespace fslam::core
