@@ -326,9 +326,10 @@ TEST(PccLoss, ValueAndGradientWithSkippedBlocks) {
   config.min_std = 1e-3;
   Buffer observed = uniform(kPixels, 0.5, 3.0, rng);
   const Buffer rendered = uniform(kPixels, 0.5, 3.0, rng);
-  // Block (0, 1): flat observed depth (std 0) -> skipped.
+  // Block (0, 1): a flat wall with 0.1 mm of noise (std < min_std = 1 mm) -> skipped.
+  std::uniform_real_distribution<double> flat_noise(-1e-4, 1e-4);
   for (int v = 0; v < 4; ++v)
-    for (int u = 4; u < 8; ++u) observed[v * kW + u] = 2.0;
+    for (int u = 4; u < 8; ++u) observed[v * kW + u] = 2.0 + flat_noise(rng);
   // Block (1, 0): only 5 valid observed pixels -> skipped.
   for (int v = 4; v < 8; ++v)
     for (int u = 0; u < 4; ++u)
