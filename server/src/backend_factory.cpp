@@ -35,4 +35,18 @@ std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, st
   return core::make_cpu_backend();
 }
 
+std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, std::string* notice,
+                                                  std::string* why) {
+  if (choice != "auto" && choice != "cpu" && choice != "cuda") {
+    if (why) *why = "compute.backend must be auto, cpu or cuda, got '" + choice + "'";
+    return nullptr;
+  }
+  if (choice == "cuda") {
+    if (why) *why = "compute.backend is cuda but the CUDA rasteriser is not built yet; use cpu";
+    return nullptr;
+  }
+  if (choice == "auto" && notice) *notice = "rasteriser: CPU (no CUDA rasteriser yet)";
+  return core::make_cpu_rasterizer();
+}
+
 }  // namespace fslam::server

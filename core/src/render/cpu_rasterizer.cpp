@@ -91,6 +91,10 @@ class CpuRasterizer final : public Rasterizer {
     out.features = D > 0 ? result->features.data.data() : nullptr;
     render_impl::rasterize_forward(scene_of(map), cam, settings.background.data(), D > 0,
                                    &state->raster, out);
+    result->visible.resize(map.size());
+    for (std::size_t i = 0; i < map.size(); ++i) {
+      result->visible[i] = state->raster.projected[i].radius > 0 ? 1 : 0;
+    }
     result->stats.gaussians = map.size();
     result->stats.pixels = static_cast<std::size_t>(W) * H;
     result->stats.visible = state->raster.visible;

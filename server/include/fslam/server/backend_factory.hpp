@@ -5,6 +5,7 @@
 #include <string>
 
 #include "fslam/core/compute/backend.hpp"
+#include "fslam/core/render/rasterizer.hpp"
 
 namespace fslam::server {
 
@@ -16,5 +17,10 @@ bool cuda_compiled_in();
 // usable GPU, is a configuration error: nullptr with `why`.
 std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, std::string* notice,
                                                    std::string* why);
+
+// The rasteriser for `choice` (auto, cpu, cuda). Only the CPU rasteriser exists so far: "cuda"
+// is a configuration error that says so, "auto" takes the CPU one with a notice.
+std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, std::string* notice,
+                                                  std::string* why);
 
 }  // namespace fslam::server

@@ -45,6 +45,7 @@ struct RenderResult {
   PlanarImage median_depth;  // [1, H, W] metres, 0 where opacity never reaches 0.5
   PlanarImage alpha;         // [1, H, W] accumulated opacity
   PlanarImage features;      // [D, H, W], empty when not rendered
+  std::vector<std::uint8_t> visible;  // [N] 1 where the Gaussian projects into the view
   RenderStats stats;
   std::shared_ptr<const RenderBackwardState> backward_state;
 };

@@ -1,0 +1,170 @@
+// Online 3DGS mapping (paper: Modeling Losses, Semantic gradient-based pruning, Post-trajectory
+// refinement): keyframes insert Gaussians where the map does not yet explain them, each
+// keyframe triggers a refinement round of capped gradient steps on the total loss
+// (eq. total_loss) followed by importance pruning (eq. sem_importance, pruning_set), and the map
+// is published as immutable versions.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+
+#include "fslam/core/geometry/pinhole_camera.hpp"
+#include "fslam/core/map/gaussian_map.hpp"
+#include "fslam/core/mapping/adam.hpp"
+#include "fslam/core/mapping/image_losses.hpp"
+#include "fslam/core/render/planar_image.hpp"
+#include "fslam/core/render/rasterizer.hpp"
+
+namespace fslam::core {
+
+// Weights of eq. total_loss. The paper names the terms but not their values; these are ours
+// (docs/mapping.md says how they were chosen).
+struct MappingLossWeights {
+  double rgb_l1 = 0.8;         // lambda_1
+  double rgb_ssim = 0.2;       // lambda_2 (3DGS's lambda_dssim)
+  double feature_l1 = 1.0;     // lambda_f
+  double depth_l1 = 1.0;       // lambda_d, per metre of mean absolute depth error
+  double depth_pcc = 0.1;      // lambda_pcc
+  PccConfig pcc;               // p = 8 pixels
+  double normal = 0.05;        // lambda_n, for each of the two cosine terms
+  double erank_lambda_0 = 0.0;      // eq. lambda_ramp
+  double erank_lambda_max = 0.005;
+  double erank_ramp_steps = 2000.0;  // T, optimisation steps
+  double erank_epsilon = 1e-2;
+  double thin = 0.05;          // lambda_thin, per metre of the smallest scale
+};
+
+struct MapperConfig {
+  int sh_degree = 0;           // 0..3
+  int feature_dim = 16;        // D of the Gaussians' latent
+  double training_scale = 0.5; // renders for training at this fraction of the input size
+  // Insertion: lattice stride on the training-resolution image where the map does not explain
+  // the keyframe: accumulated opacity below new_alpha, or the rendered surface farther than the
+  // observed one by more than new_depth_margin (+ new_depth_relative * depth).
+  int insert_stride = 2;
+  float new_alpha = 0.5f;
+  float new_depth_margin = 0.05f;     // metres
+  float new_depth_relative = 0.02f;
+  float min_depth = 0.3f;             // metres; observed depth outside is not used
+  float max_depth = 6.0f;
+  float initial_opacity = 0.7f;
+  float initial_scale_factor = 0.75f; // in-plane sigma = factor * lattice spacing on the surface
+  float initial_thickness = 0.1f;     // normal sigma = thickness * in-plane sigma
+  // Refinement round per keyframe: a cap on gradient steps (the paper's trade-off between
+  // photometric convergence and drift), sampling the newest keyframe with this probability
+  // and otherwise any keyframe uniformly.
+  int iterations_per_keyframe = 20;
+  double newest_keyframe_probability = 0.5;
+  // Eq. pruning_set percentiles: tracking keyframes 10 %, mapping keyframes 30 %. A keyframe is a
+  // mapping keyframe when it moved at least this far from the last mapping keyframe.
+  double prune_percentile_tracking = 0.10;
+  double prune_percentile_mapping = 0.30;
+  double mapping_keyframe_translation = 0.15;  // metres
+  double mapping_keyframe_rotation_deg = 9.0;
+  // Standard 3DGS pruning after each round.
+  float min_opacity = 0.005f;
+  float max_scale = 0.5f;             // metres, largest axis
+  // Mip-Splatting 3D filter: variance = filter_3d_factor * (z / f)^2 at the highest sampling
+  // rate over the keyframes that see the Gaussian.
+  float filter_3d_factor = 0.2f;
+  RenderSettings render;
+  GaussianLearningRates learning_rates;
+  MappingLossWeights loss;
+  std::uint32_t seed = 1;
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// One keyframe as the mapper receives it.
+struct MapperKeyframe {
+  std::int64_t frame_id = 0;
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+  PinholeCamera camera;  // of colour and depth
+  cv::Mat colour;        // [H, W] CV_8UC3 RGB
+  cv::Mat depth;         // [H, W] CV_32FC1 metres, 0 = missing
+  PlanarImage feature_target;  // optional [D, h, w] at the training resolution (empty = none)
+};
+
+// Per-step loss values (already weighted).
+struct MappingLosses {
+  double rgb_l1 = 0, rgb_ssim = 0, feature_l1 = 0, depth_l1 = 0, depth_pcc = 0;
+  double normal_expected = 0, normal_median = 0, erank = 0, thin = 0;
+  double total() const {
+    return rgb_l1 + rgb_ssim + feature_l1 + depth_l1 + depth_pcc + normal_expected +
+           normal_median + erank + thin;
+  }
+};
+
+struct RefinementStats {
+  std::size_t inserted = 0;
+  std::size_t pruned_importance = 0;
+  std::size_t pruned_standard = 0;
+  int iterations = 0;
+  bool mapping_keyframe = false;
+  MappingLosses last_losses;
+  double insert_ms = 0, optimise_ms = 0, prune_ms = 0;
+};
+
+class Mapper {
+ public:
+  Mapper(const MapperConfig& config, std::shared_ptr<const Rasterizer> rasterizer);
+
+  // Inserts the keyframe's unexplained pixels as Gaussians, runs one refinement round and
+  // publishes the map. False with `why` on bad input (sizes, intrinsics, pose).
+  bool add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats, std::string* why);
+  // Extra gradient steps over sampled keyframes (idle time in real-time mode), then publishes.
+  bool optimise(int iterations, std::string* why);
+  // Post-trajectory refinement: recompute the 3D filter over all keyframes, then `steps` steps
+  // with keyframes drawn uniformly; no insertion or importance pruning.
+  bool refine(int steps, std::string* why);
+  // Replaces the map (resume from a saved map); keyframes are kept.
+  bool set_map(const GaussianMap& map, std::string* why);
+
+  const GaussianMap& map() const { return map_; }
+  MapVersions& versions() { return versions_; }
+  std::size_t keyframe_count() const { return keyframes_.size(); }
+  std::int64_t total_steps() const { return step_; }
+  const MapperConfig& config() const { return config_; }
+  // The cap on gradient steps of the next refinement rounds (real-time mode lowers it when
+  // keyframes queue up).
+  void set_iterations_per_keyframe(int iterations) { config_.iterations_per_keyframe = iterations; }
+
+ private:
+  struct StoredKeyframe {
+    std::int64_t frame_id;
+    RenderView view;              // at the training resolution
+    PlanarImage colour;           // [3, h, w] in [0, 1]
+    PlanarImage depth;            // [1, h, w] metres, 0 = missing
+    PlanarImage normals;          // [3, h, w] from the observed depth
+    PlanarImage feature_target;   // [D, h, w] or empty
+  };
+  bool store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::string* why) const;
+  std::size_t insert_gaussians(const StoredKeyframe& kf);
+  bool step(const StoredKeyframe& kf, MappingLosses* losses, std::string* why);
+  std::size_t prune(double percentile);
+  void recompute_filter_3d(std::size_t first);
+  void publish();
+  std::size_t sample_keyframe(bool uniform);
+
+  MapperConfig config_;
+  std::shared_ptr<const Rasterizer> rasterizer_;
+  GaussianMap map_;
+  AdamOptimizer adam_;
+  MapVersions versions_;
+  std::vector<StoredKeyframe> keyframes_;
+  std::int64_t step_ = 0;
+  std::mt19937 rng_;
+  // Accumulated over the current refinement round, [N].
+  std::vector<float> importance_;
+  std::vector<std::uint8_t> seen_;
+  GaussianGradients grads_;
+  std::optional<Eigen::Isometry3d> last_mapping_keyframe_;
+};
+
+}  // namespace fslam::core

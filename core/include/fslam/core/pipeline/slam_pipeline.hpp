@@ -1,0 +1,78 @@
+// One SLAM session: tracking on the caller's thread, mapping on another thread the caller runs
+// (core starts no threads of its own). Tracking never waits for mapping: keyframes are handed
+// over through a queue and the mapper publishes immutable map versions (design.md data flow).
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "fslam/core/geometry/rgbd_frame.hpp"
+#include "fslam/core/mapping/mapper.hpp"
+#include "fslam/core/render/rasterizer.hpp"
+#include "fslam/core/tracking/tracker.hpp"
+
+namespace fslam::core {
+
+struct PipelineConfig {
+  TrackerConfig tracker;
+  MapperConfig mapper;
+  // Real-time mode: mapping gets what time is left. With keyframes waiting, each gets
+  // iterations_per_keyframe / (1 + waiting) steps (at least min_iterations_when_behind), and
+  // while none waits the mapper keeps optimising in steps of idle_iterations.
+  bool realtime = false;
+  int min_iterations_when_behind = 2;
+  int idle_iterations = 5;
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// What the mapping thread did for one keyframe.
+struct KeyframeReport {
+  std::int64_t frame_id = 0;
+  RefinementStats refinement;
+  std::size_t map_size = 0;
+  std::size_t queue_depth = 0;  // keyframes still waiting after this one
+};
+
+class SlamPipeline {
+ public:
+  SlamPipeline(const PipelineConfig& config, std::shared_ptr<const Rasterizer> rasterizer);
+
+  // Tracker thread: preprocess -> feature-guided GICP (eq. feat_gicp) -> keyframe decision
+  // (eq. keyframe_crit) -> hand the keyframe to mapping. Never blocks on the mapper.
+  bool process_frame(const RgbdFrame& frame, TrackingResult* result, std::string* why);
+  void set_initial_pose(const Eigen::Isometry3d& T_world_camera);
+
+  // Mapping thread: runs until finish() was called and every queued keyframe is mapped.
+  // on_keyframe (optional) is called after each keyframe's refinement round. Returns false with
+  // `why` when mapping failed (the tracker keeps running; the failure is reported once).
+  bool run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
+                   std::string* why);
+  // No more frames: the mapping loop drains its queue and returns.
+  void finish();
+
+  // After run_mapping returned: post-trajectory refinement (paper), `steps` steps.
+  bool refine(int steps, std::string* why) { return mapper_.refine(steps, why); }
+
+  Tracker& tracker() { return tracker_; }
+  const Mapper& mapper() const { return mapper_; }
+  Mapper& mapper() { return mapper_; }
+  MapVersions::Version latest_map() { return mapper_.versions().latest(); }
+  std::size_t queued_keyframes() const;
+
+ private:
+  PipelineConfig config_;
+  Tracker tracker_;
+  Mapper mapper_;
+  mutable std::mutex mutex_;
+  std::condition_variable wake_;
+  std::deque<MapperKeyframe> queue_;
+  bool finished_ = false;
+};
+
+}  // namespace fslam::core
