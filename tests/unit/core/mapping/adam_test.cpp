@@ -54,6 +54,19 @@ TEST(Adam, MatchesHandComputedThreeSteps) {
   EXPECT_EQ(adam.group(g).steps, 3);
 }
 
+TEST(Adam, EpsIsAddedAfterTheSquareRoot) {
+  // g = eps = 1e-8: the first step is lr * g / (|g| + eps) = lr / 2 (PyTorch). Adding eps under
+  // the root instead would give lr * 1e-8 / sqrt(1e-16 + 1e-8) = 1e-4 lr. Eight values so both
+  // the vectorised body and the scalar tail are covered.
+  AdamSettings settings;
+  settings.eps = 1e-8;
+  AdamOptimizer adam(9, settings);
+  const int g = adam.add_group("p", 1, 0.1f);
+  std::vector<float> params(9, 0.0f);
+  adam.step(g, &params, std::vector<float>(9, 1e-8f));
+  for (float p : params) EXPECT_NEAR(p, -0.05f, 1e-6);
+}
+
 TEST(Adam, StepCountsArePerGroup) {
   AdamOptimizer adam(1);
   const int a = adam.add_group("a", 1, 0.1f);
