@@ -1,0 +1,151 @@
+#include "fslam/core/mapping/adam.hpp"
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cassert>
+#include <cmath>
+#include <utility>
+
+namespace fslam::core {
+namespace {
+
+// Keeps rows of `row` values whose keep[i] is non-zero, in order.
+void keep_rows(std::vector<float>* values, std::size_t row, const std::vector<std::uint8_t>& keep) {
+  std::size_t out = 0;
+  for (std::size_t i = 0; i < keep.size(); ++i) {
+    if (!keep[i]) continue;
+    if (out != i) {
+      for (std::size_t k = 0; k < row; ++k) (*values)[out * row + k] = (*values)[i * row + k];
+    }
+    ++out;
+  }
+  values->resize(out * row);
+}
+
+}  // namespace
+
+AdamOptimizer::AdamOptimizer(std::size_t n, AdamSettings settings) : settings_(settings), n_(n) {}
+
+int AdamOptimizer::add_group(std::string name, std::size_t row, float lr) {
+  AdamGroup group;
+  group.name = std::move(name);
+  group.row = row;
+  group.lr = lr;
+  group.m.assign(n_ * row, 0.0f);
+  group.v.assign(n_ * row, 0.0f);
+  groups_.push_back(std::move(group));
+  return static_cast<int>(groups_.size()) - 1;
+}
+
+void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t stride) {
+  AdamGroup& group = groups_[static_cast<std::size_t>(g)];
+  assert(stride >= group.row);
+  ++group.steps;
+  if (n_ == 0 || group.row == 0) return;
+
+  // Kingma & Ba, Alg. 1 with PyTorch's placement of eps:
+  //   m = b1 m + (1 - b1) g,  v = b2 v + (1 - b2) g^2,
+  //   p -= lr / (1 - b1^t) * m / (sqrt(v) / sqrt(1 - b2^t) + eps)
+  const double t = static_cast<double>(group.steps);
+  const float step_size = static_cast<float>(group.lr / (1.0 - std::pow(settings_.beta1, t)));
+  const float bc2_sqrt = static_cast<float>(std::sqrt(1.0 - std::pow(settings_.beta2, t)));
+  const float b1 = static_cast<float>(settings_.beta1);
+  const float one_minus_b1 = static_cast<float>(1.0 - settings_.beta1);
+  const float b2 = static_cast<float>(settings_.beta2);
+  const float one_minus_b2 = static_cast<float>(1.0 - settings_.beta2);
+  const float eps = static_cast<float>(settings_.eps);
+  // Eigen keeps this vectorised, which GCC does not do for a plain loop over std::sqrt without
+  // -fno-math-errno (about 3x slower, measured). Eigen's packet sqrt (rsqrt and one Newton step
+  // under its default EIGEN_FAST_MATH) is within a couple of ulp of IEEE and flushes v below
+  // FLT_MIN to 0; both are far below what changes an optimiser step, but vectorised elements and
+  // the scalar tail can differ in the last bit.
+  auto update = [&](auto p, auto grad, auto m, auto v) {
+    m = b1 * m + one_minus_b1 * grad;
+    v = b2 * v + one_minus_b2 * grad.square();
+    p -= step_size * (m / (v.sqrt() / bc2_sqrt + eps));
+  };
+  const Eigen::Index rows = static_cast<Eigen::Index>(group.row);
+  const Eigen::Index n = static_cast<Eigen::Index>(n_);
+  if (stride == group.row) {
+    using Flat = Eigen::Map<Eigen::ArrayXf>;
+    update(Flat(params, rows * n), Eigen::Map<const Eigen::ArrayXf>(grads, rows * n),
+           Flat(group.m.data(), rows * n), Flat(group.v.data(), rows * n));
+  } else {
+    using Block = Eigen::Map<Eigen::ArrayXXf, 0, Eigen::OuterStride<>>;
+    using ConstBlock = Eigen::Map<const Eigen::ArrayXXf, 0, Eigen::OuterStride<>>;
+    const Eigen::OuterStride<> outer(static_cast<Eigen::Index>(stride));
+    update(Block(params, rows, n, outer), ConstBlock(grads, rows, n, outer),
+           Eigen::Map<Eigen::ArrayXXf>(group.m.data(), rows, n),
+           Eigen::Map<Eigen::ArrayXXf>(group.v.data(), rows, n));
+  }
+}
+
+void AdamOptimizer::step(int g, std::vector<float>* params, const std::vector<float>& grads) {
+  const std::size_t row = group(g).row;
+  assert(params->size() == n_ * row && grads.size() == n_ * row);
+  step(g, params->data(), grads.data(), row);
+}
+
+void AdamOptimizer::set_learning_rate(int g, float lr) {
+  groups_[static_cast<std::size_t>(g)].lr = lr;
+}
+
+void AdamOptimizer::reset_moments(int g) {
+  AdamGroup& group = groups_[static_cast<std::size_t>(g)];
+  std::fill(group.m.begin(), group.m.end(), 0.0f);
+  std::fill(group.v.begin(), group.v.end(), 0.0f);
+}
+
+void AdamOptimizer::grow(std::size_t count) {
+  n_ += count;
+  for (AdamGroup& group : groups_) {
+    group.m.resize(n_ * group.row, 0.0f);
+    group.v.resize(n_ * group.row, 0.0f);
+  }
+}
+
+void AdamOptimizer::keep_only(const std::vector<std::uint8_t>& keep) {
+  assert(keep.size() == n_);
+  std::size_t kept = 0;
+  for (std::uint8_t k : keep) kept += k ? 1 : 0;
+  for (AdamGroup& group : groups_) {
+    keep_rows(&group.m, group.row, keep);
+    keep_rows(&group.v, group.row, keep);
+  }
+  n_ = kept;
+}
+
+AdamOptimizer make_gaussian_adam(const GaussianMap& map, const GaussianLearningRates& rates,
+                                 const AdamSettings& settings) {
+  AdamOptimizer adam(map.size(), settings);
+  const std::size_t rest = static_cast<std::size_t>(map.sh_per_gaussian()) - 3;
+  // Added in GaussianAdamGroup order.
+  adam.add_group("means", 3, rates.means);
+  adam.add_group("rotations", 4, rates.rotations);
+  adam.add_group("log_scales", 3, rates.log_scales);
+  adam.add_group("opacity_logits", 1, rates.opacity);
+  adam.add_group("sh_dc", 3, rates.sh_dc);
+  adam.add_group("sh_rest", rest, rates.sh_rest);
+  adam.add_group("features", static_cast<std::size_t>(map.feature_dim), rates.features);
+  assert(adam.group_count() == kAdamGroupCount);
+  return adam;
+}
+
+void step_gaussian_adam(AdamOptimizer* adam, GaussianMap* map, const GaussianMap& grads) {
+  assert(adam->group_count() == kAdamGroupCount && adam->size() == map->size());
+  assert(grads.sh_degree == map->sh_degree && grads.feature_dim == map->feature_dim);
+  adam->step(kAdamMeans, &map->means, grads.means);
+  adam->step(kAdamRotations, &map->rotations, grads.rotations);
+  adam->step(kAdamLogScales, &map->log_scales, grads.log_scales);
+  adam->step(kAdamOpacity, &map->opacity_logits, grads.opacity_logits);
+  // sh [N, K, 3]: the DC block is the first 3 values of each row, the higher bands the rest.
+  assert(grads.sh.size() == map->sh.size());
+  const std::size_t sh_row = static_cast<std::size_t>(map->sh_per_gaussian());
+  const bool any = !map->sh.empty();
+  adam->step(kAdamShDc, map->sh.data(), grads.sh.data(), sh_row);
+  adam->step(kAdamShRest, any ? map->sh.data() + 3 : nullptr, any ? grads.sh.data() + 3 : nullptr,
+             sh_row);
+  adam->step(kAdamFeatures, &map->features, grads.features);
+}
+
+}  // namespace fslam::core
