@@ -37,7 +37,8 @@ int AdamOptimizer::add_group(std::string name, std::size_t row, float lr) {
   return static_cast<int>(groups_.size()) - 1;
 }
 
-void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t stride) {
+void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t stride,
+                         const std::uint8_t* active) {
   AdamGroup& group = groups_[static_cast<std::size_t>(g)];
   assert(stride >= group.row);
   ++group.steps;
@@ -66,7 +67,17 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
   };
   const Eigen::Index rows = static_cast<Eigen::Index>(group.row);
   const Eigen::Index n = static_cast<Eigen::Index>(n_);
-  if (stride == group.row) {
+  if (active != nullptr) {
+    // Sparse update (as 3DGS's visibility-masked Adam): rows that are not active keep their
+    // parameters and moments, so momentum from earlier views does not move what this view
+    // cannot see.
+    for (std::size_t i = 0; i < n_; ++i) {
+      if (!active[i]) continue;
+      using Row = Eigen::Map<Eigen::ArrayXf>;
+      update(Row(params + i * stride, rows), Eigen::Map<const Eigen::ArrayXf>(grads + i * stride, rows),
+             Row(group.m.data() + i * group.row, rows), Row(group.v.data() + i * group.row, rows));
+    }
+  } else if (stride == group.row) {
     using Flat = Eigen::Map<Eigen::ArrayXf>;
     update(Flat(params, rows * n), Eigen::Map<const Eigen::ArrayXf>(grads, rows * n),
            Flat(group.m.data(), rows * n), Flat(group.v.data(), rows * n));
@@ -80,10 +91,11 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
   }
 }
 
-void AdamOptimizer::step(int g, std::vector<float>* params, const std::vector<float>& grads) {
+void AdamOptimizer::step(int g, std::vector<float>* params, const std::vector<float>& grads,
+                         const std::uint8_t* active) {
   const std::size_t row = group(g).row;
   assert(params->size() == n_ * row && grads.size() == n_ * row);
-  step(g, params->data(), grads.data(), row);
+  step(g, params->data(), grads.data(), row, active);
 }
 
 void AdamOptimizer::set_learning_rate(int g, float lr) {
@@ -131,21 +143,24 @@ AdamOptimizer make_gaussian_adam(const GaussianMap& map, const GaussianLearningR
   return adam;
 }
 
-void step_gaussian_adam(AdamOptimizer* adam, GaussianMap* map, const GaussianMap& grads) {
+void step_gaussian_adam(AdamOptimizer* adam, GaussianMap* map, const GaussianMap& grads,
+                        const std::vector<std::uint8_t>* active) {
   assert(adam->group_count() == kAdamGroupCount && adam->size() == map->size());
   assert(grads.sh_degree == map->sh_degree && grads.feature_dim == map->feature_dim);
-  adam->step(kAdamMeans, &map->means, grads.means);
-  adam->step(kAdamRotations, &map->rotations, grads.rotations);
-  adam->step(kAdamLogScales, &map->log_scales, grads.log_scales);
-  adam->step(kAdamOpacity, &map->opacity_logits, grads.opacity_logits);
+  assert(active == nullptr || active->size() == map->size());
+  const std::uint8_t* mask = active != nullptr ? active->data() : nullptr;
+  adam->step(kAdamMeans, &map->means, grads.means, mask);
+  adam->step(kAdamRotations, &map->rotations, grads.rotations, mask);
+  adam->step(kAdamLogScales, &map->log_scales, grads.log_scales, mask);
+  adam->step(kAdamOpacity, &map->opacity_logits, grads.opacity_logits, mask);
   // sh [N, K, 3]: the DC block is the first 3 values of each row, the higher bands the rest.
   assert(grads.sh.size() == map->sh.size());
   const std::size_t sh_row = static_cast<std::size_t>(map->sh_per_gaussian());
   const bool any = !map->sh.empty();
-  adam->step(kAdamShDc, map->sh.data(), grads.sh.data(), sh_row);
+  adam->step(kAdamShDc, map->sh.data(), grads.sh.data(), sh_row, mask);
   adam->step(kAdamShRest, any ? map->sh.data() + 3 : nullptr, any ? grads.sh.data() + 3 : nullptr,
-             sh_row);
-  adam->step(kAdamFeatures, &map->features, grads.features);
+             sh_row, mask);
+  adam->step(kAdamFeatures, &map->features, grads.features, mask);
 }
 
 }  // namespace fslam::core

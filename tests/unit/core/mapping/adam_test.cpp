@@ -238,3 +238,25 @@ TEST(GaussianAdam, GroupsFollowTheMapAndItsLearningRates) {
 
 }  // namespace
 }  // namespace fslam::core
+
+namespace fslam::core {
+namespace {
+
+TEST(Adam, SparseStepLeavesInactiveRowsUntouched) {
+  AdamOptimizer adam(3);
+  const int g = adam.add_group("p", 2, 0.1f);
+  std::vector<float> params = {1, 2, 3, 4, 5, 6}, grads = {1, 1, 1, 1, 1, 1};
+  const std::vector<std::uint8_t> active = {1, 0, 1};
+  adam.step(g, &params, grads, active.data());
+  // Active rows move by -lr * sign(grad) on a first step, the inactive row not at all.
+  EXPECT_NEAR(params[0], 0.9f, 1e-6f);
+  EXPECT_NEAR(params[5], 5.9f, 1e-6f);
+  EXPECT_EQ(params[2], 3.0f);
+  EXPECT_EQ(params[3], 4.0f);
+  EXPECT_EQ(adam.group(g).m[2], 0.0f);
+  EXPECT_EQ(adam.group(g).v[3], 0.0f);
+  EXPECT_GT(adam.group(g).m[0], 0.0f);
+}
+
+}  // namespace
+}  // namespace fslam::core

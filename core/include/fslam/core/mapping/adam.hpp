@@ -42,9 +42,13 @@ class AdamOptimizer {
   // One step of group `g`. params, grads: [N, stride]; the group's `row` values sit at the start
   // of each Gaussian's stride (stride = row for a whole array; a block of a wider array, such as
   // the DC or the higher-band columns of sh [N, K, 3], is passed by offset pointers and stride).
-  void step(int g, float* params, const float* grads, std::size_t stride);
+  // active (optional, [N]): only rows with active[i] != 0 are updated, parameters and moments;
+  // the others are left exactly as they were (a visibility-masked, sparse step).
+  void step(int g, float* params, const float* grads, std::size_t stride,
+            const std::uint8_t* active = nullptr);
   // The same for a whole [N, row] array.
-  void step(int g, std::vector<float>* params, const std::vector<float>& grads);
+  void step(int g, std::vector<float>* params, const std::vector<float>& grads,
+            const std::uint8_t* active = nullptr);
 
   void set_learning_rate(int g, float lr);
   // Zeros the moments of group `g`, keeping its step count (3DGS does this on opacity reset).
@@ -102,6 +106,8 @@ AdamOptimizer make_gaussian_adam(const GaussianMap& map, const GaussianLearningR
 
 // Steps every group of an optimiser from make_gaussian_adam. grads: the same layout as *map
 // (filter_3d ignored).
-void step_gaussian_adam(AdamOptimizer* adam, GaussianMap* map, const GaussianMap& grads);
+// active (optional, [N]): a sparse step of the Gaussians with active[i] != 0 only.
+void step_gaussian_adam(AdamOptimizer* adam, GaussianMap* map, const GaussianMap& grads,
+                        const std::vector<std::uint8_t>* active = nullptr);
 
 }  // namespace fslam::core

@@ -35,7 +35,9 @@ struct ProjectedGaussian {
   T depth;      // camera z of the mean, metres (sort key)
   T plane[2];   // camera-plane depth slopes, metres per pixel (eq. planar depth field)
   T colour[3];  // view-dependent colour from SH, clamped at 0
-  int radius;   // pixels around (u, v) where alpha can reach kAlphaMin; 0 = culled
+  T power_floor;  // log(kAlphaMin / opacity): a lower exponent gives alpha < kAlphaMin
+  T extent[2];    // half-width and half-height (pixels) of the ellipse where alpha >= kAlphaMin
+  int radius;     // pixels around (u, v) where alpha can reach kAlphaMin; 0 = culled
 };
 
 // Gradient of the loss w.r.t. a ProjectedGaussian's fields, summed over its pixels.
@@ -263,8 +265,13 @@ FSLAM_HD bool project_gaussian(const T mean[3], const T quat[4], const T log_sca
   const T mid = T(0.5) * (p.cov2d[0] + p.cov2d[2]);
   const T disc = mid * mid - det;
   const T lambda_max = mid + sqrt(disc > T(0) ? disc : T(0));
-  const T extent2 = T(2) * log(out->opacity / T(kAlphaMin)) * lambda_max;
-  const int radius = static_cast<int>(ceil(sqrt(extent2)));
+  const T level = T(2) * log(out->opacity / T(kAlphaMin));  // d^T Sigma2D^-1 d at alpha_min
+  const int radius = static_cast<int>(ceil(sqrt(level * lambda_max)));
+  out->power_floor = -T(0.5) * level;
+  // The ellipse d^T Sigma^-1 d <= level spans sqrt(level Sigma_xx) by sqrt(level Sigma_yy):
+  // tighter tile bounds than the circle of the largest axis.
+  out->extent[0] = sqrt(level * p.cov2d[0]);
+  out->extent[1] = sqrt(level * p.cov2d[2]);
   out->u = cam.fx * x / z + cam.cx;
   out->v = cam.fy * y / z + cam.cy;
   if (out->u + radius < T(-0.5) || out->u - radius > T(cam.width) - T(0.5) ||
@@ -487,7 +494,8 @@ template <typename T>
 FSLAM_HD T splat_alpha(const ProjectedGaussian<T>& g, T px, T py, T* gaussian) {
   const T dx = px - g.u, dy = py - g.v;
   const T power = T(-0.5) * (g.conic[0] * dx * dx + g.conic[2] * dy * dy) - g.conic[1] * dx * dy;
-  if (power > T(0)) return T(0);
+  // Outside the footprint: skip before the exponential (most pairs of a tile list).
+  if (power > T(0) || power < g.power_floor) return T(0);
   *gaussian = exp(power);
   const T alpha = g.opacity * *gaussian;
   if (alpha < T(kAlphaMin)) return T(0);

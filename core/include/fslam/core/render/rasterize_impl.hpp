@@ -115,11 +115,12 @@ void project_and_bin(const SplatScene<T>& scene, const math::SplatCamera<T>& cam
         pg.radius = 0;
         continue;
       }
-      const T r_px = T(pg.radius);
-      const int x0 = static_cast<int>(std::floor((pg.u - r_px + T(0.5)) / kTileSize));
-      const int y0 = static_cast<int>(std::floor((pg.v - r_px + T(0.5)) / kTileSize));
-      const int x1 = static_cast<int>(std::floor((pg.u + r_px + T(0.5)) / kTileSize)) + 1;
-      const int y1 = static_cast<int>(std::floor((pg.v + r_px + T(0.5)) / kTileSize)) + 1;
+      // Tiles whose pixel centres can lie inside the ellipse (pixel centres at integers, tile t
+      // covers centres t*16 .. t*16+15).
+      const int x0 = static_cast<int>(std::ceil(pg.u - pg.extent[0])) / kTileSize;
+      const int y0 = static_cast<int>(std::ceil(pg.v - pg.extent[1])) / kTileSize;
+      const int x1 = static_cast<int>(std::floor(pg.u + pg.extent[0])) / kTileSize + 1;
+      const int y1 = static_cast<int>(std::floor(pg.v + pg.extent[1])) / kTileSize + 1;
       rect[4 * i] = std::max(0, x0);
       rect[4 * i + 1] = std::max(0, y0);
       rect[4 * i + 2] = std::min(st.tiles_x, x1);

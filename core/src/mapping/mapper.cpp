@@ -1,0 +1,390 @@
+#include "fslam/core/mapping/mapper.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <utility>
+
+#include <opencv2/imgproc.hpp>
+
+#include "fslam/core/error.hpp"
+
+namespace fslam::core {
+namespace {
+
+double ms_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+// Quaternion (w, x, y, z) of a rotation whose third column is the unit vector n.
+void rotation_to_normal(const Eigen::Vector3f& n, float q[4]) {
+  const Eigen::Quaternionf rot = Eigen::Quaternionf::FromTwoVectors(Eigen::Vector3f::UnitZ(), n);
+  q[0] = rot.w();
+  q[1] = rot.x();
+  q[2] = rot.y();
+  q[3] = rot.z();
+}
+
+float logit(float p) { return std::log(p / (1.0f - p)); }
+
+}  // namespace
+
+bool MapperConfig::is_valid(std::string* why) const {
+  if (sh_degree < 0 || sh_degree > kMaxShDegree) return fail(why, "mapper: sh_degree must be 0..3");
+  if (feature_dim < 0) return fail(why, "mapper: feature_dim must be >= 0");
+  if (!(training_scale > 0.0 && training_scale <= 1.0)) {
+    return fail(why, "mapper: training_scale must be in (0, 1]");
+  }
+  if (insert_stride < 1) return fail(why, "mapper: insert_stride must be >= 1");
+  if (!(initial_opacity > 0.0f && initial_opacity < 1.0f)) {
+    return fail(why, "mapper: initial_opacity must be in (0, 1)");
+  }
+  if (iterations_per_keyframe < 0) return fail(why, "mapper: iterations_per_keyframe must be >= 0");
+  if (!(prune_percentile_tracking >= 0.0 && prune_percentile_tracking < 1.0 &&
+        prune_percentile_mapping >= 0.0 && prune_percentile_mapping < 1.0)) {
+    return fail(why, "mapper: pruning percentiles must be in [0, 1)");
+  }
+  if (!(min_depth > 0.0f && max_depth > min_depth)) return fail(why, "mapper: bad depth range");
+  return validate(loss.pcc, why);
+}
+
+Mapper::Mapper(const MapperConfig& config, std::shared_ptr<const Rasterizer> rasterizer)
+    : config_(config), rasterizer_(std::move(rasterizer)), rng_(config.seed) {
+  map_.sh_degree = config_.sh_degree;
+  map_.feature_dim = config_.feature_dim;
+  adam_ = make_gaussian_adam(map_, config_.learning_rates);
+}
+
+bool Mapper::store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::string* why) const {
+  std::string reason;
+  if (!keyframe.camera.is_valid(&reason)) return fail(why, "keyframe: " + reason);
+  const cv::Size size(keyframe.camera.width, keyframe.camera.height);
+  if (keyframe.colour.type() != CV_8UC3 || keyframe.colour.size() != size) {
+    return fail(why, "keyframe: colour must be CV_8UC3 of the camera's size");
+  }
+  if (keyframe.depth.type() != CV_32FC1 || keyframe.depth.size() != size) {
+    return fail(why, "keyframe: depth must be CV_32FC1 of the camera's size");
+  }
+  if (!keyframe.T_world_camera.matrix().allFinite()) return fail(why, "keyframe: non-finite pose");
+  const PinholeCamera cam = keyframe.camera.scaled(config_.training_scale);
+  const cv::Size small(cam.width, cam.height);
+  cv::Mat colour, depth;
+  cv::resize(keyframe.colour, colour, small, 0, 0, cv::INTER_AREA);
+  // Nearest neighbour: averaging depth across an edge invents surfaces that are not there.
+  cv::resize(keyframe.depth, depth, small, 0, 0, cv::INTER_NEAREST);
+  out->frame_id = keyframe.frame_id;
+  out->view.camera = cam;
+  out->view.T_camera_world = keyframe.T_world_camera.inverse();
+  out->colour = PlanarImage(cam.width, cam.height, 3);
+  out->depth = PlanarImage(cam.width, cam.height, 1);
+  for (int v = 0; v < cam.height; ++v) {
+    const cv::Vec3b* c = colour.ptr<cv::Vec3b>(v);
+    const float* d = depth.ptr<float>(v);
+    for (int u = 0; u < cam.width; ++u) {
+      for (int k = 0; k < 3; ++k) out->colour.at(k, v, u) = c[u][k] / 255.0f;
+      const float z = d[u];
+      out->depth.at(0, v, u) =
+          (std::isfinite(z) && z > config_.min_depth && z < config_.max_depth) ? z : 0.0f;
+    }
+  }
+  if (!depth_to_normals(out->depth, cam.intrinsics(), &out->normals, why)) return false;
+  if (!keyframe.feature_target.empty()) {
+    if (keyframe.feature_target.width != cam.width || keyframe.feature_target.height != cam.height ||
+        keyframe.feature_target.channels != config_.feature_dim) {
+      return fail(why, "keyframe: feature target must be [D, h, w] at the training resolution");
+    }
+    out->feature_target = keyframe.feature_target;
+  }
+  return true;
+}
+
+// Gaussians where the map does not explain the keyframe: low rendered opacity, or a rendered
+// surface behind the observed one (something new in front).
+std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf) {
+  const int W = kf.view.camera.width, H = kf.view.camera.height;
+  RenderResult rendered;
+  const bool have_map = !map_.empty();
+  if (have_map) {
+    RenderSettings settings = config_.render;
+    settings.features = false;
+    std::string why;
+    if (!rasterizer_->forward(map_, kf.view, settings, &rendered, &why)) return 0;
+  }
+  const Eigen::Isometry3d T_world_camera = kf.view.T_camera_world.inverse();
+  const Eigen::Matrix3f R = T_world_camera.rotation().cast<float>();
+  const Eigen::Vector3f t = T_world_camera.translation().cast<float>();
+  const float fx = static_cast<float>(kf.view.camera.fx);
+  const float fy = static_cast<float>(kf.view.camera.fy);
+  const float cx = static_cast<float>(kf.view.camera.cx);
+  const float cy = static_cast<float>(kf.view.camera.cy);
+  const int stride = config_.insert_stride;
+  const int K = sh_coefficients(config_.sh_degree);
+  std::vector<float> sh(static_cast<std::size_t>(3 * K), 0.0f);
+  const std::size_t before = map_.size();
+  for (int v = stride / 2; v < H; v += stride) {
+    for (int u = stride / 2; u < W; u += stride) {
+      const float z = kf.depth.at(0, v, u);
+      if (z <= 0.0f) continue;
+      if (have_map) {
+        const float alpha = rendered.alpha.at(0, v, u);
+        const float median = rendered.median_depth.at(0, v, u);
+        const bool covered = alpha >= config_.new_alpha && median > 0.0f &&
+                             median - z <= config_.new_depth_margin + config_.new_depth_relative * z;
+        if (covered) continue;
+      }
+      Eigen::Vector3f n_cam(kf.normals.at(0, v, u), kf.normals.at(1, v, u), kf.normals.at(2, v, u));
+      if (n_cam.squaredNorm() < 0.5f) continue;  // no surface estimate: isolated or edge sample
+      const Eigen::Vector3f p_cam((u - cx) * z / fx, (v - cy) * z / fy, z);
+      const Eigen::Vector3f p_world = R * p_cam + t;
+      float q[4];
+      rotation_to_normal(R * n_cam, q);
+      // The lattice spacing on the surface: stride pixels at depth z, stretched by the slant.
+      const float slant = std::max(0.25f, std::abs(n_cam.dot(p_cam.normalized())));
+      const float spacing = stride * z / fx;
+      const float sigma = config_.initial_scale_factor * spacing;
+      const float log_scale[3] = {std::log(sigma / std::sqrt(slant)), std::log(sigma / std::sqrt(slant)),
+                                  std::log(sigma * config_.initial_thickness)};
+      for (int c = 0; c < 3; ++c) sh[c] = rgb_to_sh_dc(kf.colour.at(c, v, u));
+      const float* feature = nullptr;
+      std::vector<float> f;
+      if (!kf.feature_target.empty()) {
+        f.resize(static_cast<std::size_t>(config_.feature_dim));
+        for (int c = 0; c < config_.feature_dim; ++c) f[c] = kf.feature_target.at(c, v, u);
+        feature = f.data();
+      }
+      const float mean[3] = {p_world.x(), p_world.y(), p_world.z()};
+      // Mip-Splatting 3D filter from this keyframe's sampling rate (refined by refine()).
+      const float filter = config_.filter_3d_factor * (z / fx) * (z / fx);
+      map_.push_back(mean, q, log_scale, logit(config_.initial_opacity), sh.data(), feature, filter);
+    }
+  }
+  const std::size_t added = map_.size() - before;
+  adam_.grow(added);
+  importance_.resize(map_.size(), 0.0f);
+  seen_.resize(map_.size(), 0);
+  return added;
+}
+
+std::size_t Mapper::sample_keyframe(bool uniform) {
+  const std::size_t n = keyframes_.size();
+  if (!uniform) {
+    std::bernoulli_distribution newest(config_.newest_keyframe_probability);
+    if (newest(rng_)) return n - 1;
+  }
+  std::uniform_int_distribution<std::size_t> any(0, n - 1);
+  return any(rng_);
+}
+
+// One gradient step on eq. total_loss for one keyframe's view.
+bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* why) {
+  const MappingLossWeights& w = config_.loss;
+  RenderSettings settings = config_.render;
+  const bool features = !kf.feature_target.empty() && map_.feature_dim > 0 && w.feature_l1 > 0;
+  settings.features = features;
+  RenderResult r;
+  if (!rasterizer_->forward(map_, kf.view, settings, &r, why)) return false;
+  RenderGradients g;
+  MappingLosses l;
+  // L_rgb (eq. modeling_losses): lambda_1 L1 + lambda_2 (1 - SSIM).
+  if (!l1_loss(r.colour, kf.colour, nullptr, w.rgb_l1, &l.rgb_l1, &g.colour, why)) return false;
+  if (!ssim_loss(r.colour, kf.colour, nullptr, w.rgb_ssim, &l.rgb_ssim, &g.colour, why)) return false;
+  // L_feat: lambda_f L1 against the encoder's latent target.
+  if (features &&
+      !l1_loss(r.features, kf.feature_target, nullptr, w.feature_l1, &l.feature_l1, &g.features, why)) {
+    return false;
+  }
+  // L_depth: lambda_d L1 + lambda_pcc (1 - patch-wise Pearson) on the camera-plane depth.
+  if (!depth_l1_loss(r.depth, kf.depth, nullptr, w.depth_l1, &l.depth_l1, &g.depth, why)) return false;
+  if (w.depth_pcc > 0 &&
+      !pcc_loss(r.depth, kf.depth, nullptr, w.pcc, w.depth_pcc, &l.depth_pcc, &g.depth, why)) {
+    return false;
+  }
+  // L_nrm: cosine terms between normals of expected / median depth and the observed normals.
+  if (w.normal > 0) {
+    const math::Intrinsics k = kf.view.camera.intrinsics();
+    PlanarImage n_exp, n_med, g_n_exp, g_n_med;
+    if (!depth_to_normals(r.depth, k, &n_exp, why) ||
+        !depth_to_normals(r.median_depth, k, &n_med, why) ||
+        !normal_consistency_loss(n_exp, kf.normals, nullptr, w.normal, &l.normal_expected,
+                                 &g_n_exp, why) ||
+        !normal_consistency_loss(n_med, kf.normals, nullptr, w.normal, &l.normal_median,
+                                 &g_n_med, why) ||
+        !depth_to_normals_backward(r.depth, k, g_n_exp, &g.depth, why) ||
+        !depth_to_normals_backward(r.median_depth, k, g_n_med, &g.median_depth, why)) {
+      return false;
+    }
+  }
+  grads_.reset(map_);
+  if (!rasterizer_->backward(map_, kf.view, settings, r, g, &grads_, why)) return false;
+  // L_erank (eq. erank_loss with the ramp of eq. lambda_ramp) and L_thin (eq. thin_loss).
+  const double lambda_e =
+      erank_lambda(static_cast<int>(step_), w.erank_lambda_0, w.erank_lambda_max, w.erank_ramp_steps);
+  if (lambda_e > 0 &&
+      !erank_loss(map_.log_scales, lambda_e, w.erank_epsilon, &l.erank, &grads_.log_scales, why)) {
+    return false;
+  }
+  if (w.thin > 0 && !thin_loss(map_.log_scales, w.thin, &l.thin, &grads_.log_scales, why)) {
+    return false;
+  }
+  // Eq. sem_importance, accumulated over the round; lambda_c = lambda_f = 1 relative to the
+  // already weighted losses.
+  for (std::size_t i = 0; i < map_.size(); ++i) {
+    importance_[i] += grads_.importance_rgb[i] + grads_.importance_feature[i];
+  }
+  // Only the Gaussians this view sees are stepped: Adam's momentum must not drift the rest.
+  std::vector<std::uint8_t> visible(map_.size(), 0);
+  for (std::size_t i = 0; i < map_.size(); ++i) {
+    visible[i] = r.visible[i];
+    if (visible[i]) seen_[i] = 1;
+  }
+  GaussianMap grad_map;
+  grad_map.sh_degree = map_.sh_degree;
+  grad_map.feature_dim = map_.feature_dim;
+  grad_map.means = std::move(grads_.means);
+  grad_map.rotations = std::move(grads_.rotations);
+  grad_map.log_scales = std::move(grads_.log_scales);
+  grad_map.opacity_logits = std::move(grads_.opacity_logits);
+  grad_map.sh = std::move(grads_.sh);
+  grad_map.features = std::move(grads_.features);
+  step_gaussian_adam(&adam_, &map_, grad_map, &visible);
+  ++step_;
+  if (losses != nullptr) *losses = l;
+  return true;
+}
+
+std::size_t Mapper::prune(double percentile) {
+  const std::size_t n = map_.size();
+  std::vector<std::uint8_t> keep(n, 1);
+  std::size_t pruned_importance = 0;
+  // Eq. pruning_set over the Gaussians this round saw: the rest have no importance evidence.
+  std::vector<float> scores;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (seen_[i]) scores.push_back(importance_[i]);
+  }
+  if (percentile > 0.0 && scores.size() > 10) {
+    const std::size_t k = static_cast<std::size_t>(percentile * static_cast<double>(scores.size()));
+    std::nth_element(scores.begin(), scores.begin() + k, scores.end());
+    const float threshold = scores[k];
+    for (std::size_t i = 0; i < n; ++i) {
+      if (seen_[i] && importance_[i] < threshold) {
+        keep[i] = 0;
+        ++pruned_importance;
+      }
+    }
+  }
+  // Standard 3DGS pruning: nearly transparent or too large.
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!keep[i]) continue;
+    const float opacity = 1.0f / (1.0f + std::exp(-map_.opacity_logits[i]));
+    const float* ls = map_.log_scales.data() + 3 * i;
+    const float largest = std::exp(std::max({ls[0], ls[1], ls[2]}));
+    if (opacity < config_.min_opacity || largest > config_.max_scale) keep[i] = 0;
+  }
+  map_.keep_only(keep);
+  adam_.keep_only(keep);
+  importance_.assign(map_.size(), 0.0f);
+  seen_.assign(map_.size(), 0);
+  return pruned_importance;
+}
+
+// Mip-Splatting's 3D filter from the highest sampling rate f / z over the keyframes whose view
+// contains the Gaussian's centre.
+void Mapper::recompute_filter_3d(std::size_t first) {
+  for (std::size_t i = first; i < map_.size(); ++i) {
+    const Eigen::Vector3d p(map_.means[3 * i], map_.means[3 * i + 1], map_.means[3 * i + 2]);
+    double best_rate = 0.0;
+    for (const StoredKeyframe& kf : keyframes_) {
+      const Eigen::Vector3d c = kf.view.T_camera_world * p;
+      if (c.z() <= config_.render.near_plane) continue;
+      const Eigen::Vector2d px = kf.view.camera.project(c);
+      if (!kf.view.camera.contains(px)) continue;
+      best_rate = std::max(best_rate, kf.view.camera.fx / c.z());
+    }
+    if (best_rate > 0.0) {
+      map_.filter_3d[i] = static_cast<float>(config_.filter_3d_factor / (best_rate * best_rate));
+    }
+  }
+}
+
+void Mapper::publish() { versions_.publish(std::make_shared<const GaussianMap>(map_)); }
+
+bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats,
+                          std::string* why) {
+  RefinementStats s;
+  StoredKeyframe kf;
+  if (!store(keyframe, &kf, why)) return false;
+  auto t0 = std::chrono::steady_clock::now();
+  s.inserted = insert_gaussians(kf);
+  keyframes_.push_back(std::move(kf));
+  s.insert_ms = ms_since(t0);
+
+  const Eigen::Isometry3d& T = keyframe.T_world_camera;
+  if (!last_mapping_keyframe_) {
+    s.mapping_keyframe = true;
+  } else {
+    const Eigen::Isometry3d delta = last_mapping_keyframe_->inverse() * T;
+    const double angle_deg = Eigen::AngleAxisd(delta.rotation()).angle() * 180.0 / M_PI;
+    s.mapping_keyframe = delta.translation().norm() >= config_.mapping_keyframe_translation ||
+                         angle_deg >= config_.mapping_keyframe_rotation_deg;
+  }
+  if (s.mapping_keyframe) last_mapping_keyframe_ = T;
+
+  t0 = std::chrono::steady_clock::now();
+  importance_.assign(map_.size(), 0.0f);
+  seen_.assign(map_.size(), 0);
+  for (int it = 0; it < config_.iterations_per_keyframe && !map_.empty(); ++it) {
+    if (!step(keyframes_[sample_keyframe(false)], &s.last_losses, why)) return false;
+    ++s.iterations;
+  }
+  s.optimise_ms = ms_since(t0);
+  t0 = std::chrono::steady_clock::now();
+  const std::size_t before = map_.size();
+  if (s.iterations > 0) {
+    s.pruned_importance = prune(s.mapping_keyframe ? config_.prune_percentile_mapping
+                                                   : config_.prune_percentile_tracking);
+  }
+  s.pruned_standard = before - map_.size() - s.pruned_importance;
+  s.prune_ms = ms_since(t0);
+  publish();
+  if (stats != nullptr) *stats = s;
+  return true;
+}
+
+bool Mapper::optimise(int iterations, std::string* why) {
+  for (int it = 0; it < iterations && !keyframes_.empty() && !map_.empty(); ++it) {
+    if (!step(keyframes_[sample_keyframe(false)], nullptr, why)) return false;
+  }
+  publish();
+  return true;
+}
+
+bool Mapper::refine(int steps, std::string* why) {
+  if (keyframes_.empty() || map_.empty()) return true;
+  recompute_filter_3d(0);
+  for (int it = 0; it < steps; ++it) {
+    if (!step(keyframes_[sample_keyframe(true)], nullptr, why)) return false;
+  }
+  publish();
+  return true;
+}
+
+bool Mapper::set_map(const GaussianMap& map, std::string* why) {
+  std::string reason;
+  if (!map.is_consistent(&reason)) return fail(why, "map: " + reason);
+  if (map.sh_degree != config_.sh_degree || map.feature_dim != config_.feature_dim) {
+    return fail(why, "map: SH degree " + std::to_string(map.sh_degree) + " and " +
+                         std::to_string(map.feature_dim) + " feature channels, the mapper is set "
+                         "up for " + std::to_string(config_.sh_degree) + " and " +
+                         std::to_string(config_.feature_dim));
+  }
+  map_ = map;
+  if (map_.filter_3d.size() != map_.size()) map_.filter_3d.assign(map_.size(), 0.0f);
+  adam_ = make_gaussian_adam(map_, config_.learning_rates);
+  importance_.assign(map_.size(), 0.0f);
+  seen_.assign(map_.size(), 0);
+  publish();
+  return true;
+}
+
+}  // namespace fslam::core

@@ -1,0 +1,100 @@
+#include "fslam/core/pipeline/slam_pipeline.hpp"
+
+#include <algorithm>
+#include <utility>
+
+#include "fslam/core/error.hpp"
+
+namespace fslam::core {
+
+bool PipelineConfig::is_valid(std::string* why) const {
+  if (!tracker.is_valid(why) || !mapper.is_valid(why)) return false;
+  if (min_iterations_when_behind < 0 || idle_iterations < 0) {
+    return fail(why, "pipeline: iteration counts must be >= 0");
+  }
+  return true;
+}
+
+SlamPipeline::SlamPipeline(const PipelineConfig& config,
+                           std::shared_ptr<const Rasterizer> rasterizer)
+    : config_(config), tracker_(config.tracker), mapper_(config.mapper, std::move(rasterizer)) {}
+
+void SlamPipeline::set_initial_pose(const Eigen::Isometry3d& T_world_camera) {
+  tracker_.set_initial_pose(T_world_camera);
+}
+
+bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
+                                 std::string* why) {
+  // Preprocess, register and decide on a keyframe (Tracker::track, eq. feat_gicp, keyframe_crit).
+  if (!tracker_.track(frame, result, why)) return false;
+  // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
+  if (result->keyframe) {
+    MapperKeyframe kf;
+    kf.frame_id = frame.id;
+    kf.T_world_camera = result->T_world_camera;
+    kf.camera = frame.camera;
+    kf.colour = frame.colour;
+    kf.depth = frame.depth;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      queue_.push_back(std::move(kf));
+    }
+    wake_.notify_one();
+  }
+  return true;
+}
+
+void SlamPipeline::finish() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    finished_ = true;
+  }
+  wake_.notify_all();
+}
+
+std::size_t SlamPipeline::queued_keyframes() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return queue_.size();
+}
+
+bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
+                               std::string* why) {
+  for (;;) {
+    MapperKeyframe kf;
+    std::size_t waiting = 0;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      if (config_.realtime) {
+        // Idle time goes to more optimisation while nothing waits.
+        while (queue_.empty() && !finished_) {
+          lock.unlock();
+          if (!mapper_.optimise(config_.idle_iterations, why)) return false;
+          lock.lock();
+          if (mapper_.keyframe_count() == 0 && queue_.empty() && !finished_) {
+            wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
+          }
+        }
+      } else {
+        wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
+      }
+      if (queue_.empty()) return true;  // finished and drained
+      kf = std::move(queue_.front());
+      queue_.pop_front();
+      waiting = queue_.size();
+    }
+    int iterations = config_.mapper.iterations_per_keyframe;
+    if (config_.realtime && waiting > 0) {
+      iterations = std::max(config_.min_iterations_when_behind,
+                            iterations / static_cast<int>(1 + waiting));
+    }
+    mapper_.set_iterations_per_keyframe(iterations);
+    KeyframeReport report;
+    report.frame_id = kf.frame_id;
+    if (!mapper_.add_keyframe(kf, &report.refinement, why)) return false;
+    report.map_size = mapper_.map().size();
+    report.queue_depth = waiting;
+    if (on_keyframe) on_keyframe(report);
+  }
+}
+
+}  // namespace fslam::core

@@ -1,0 +1,400 @@
+// `fslam run`: tracking and mapping together in one process (tracking on this thread, mapping
+// on a second one; tracking never waits for mapping), then the outputs of docs/mapping.md:
+// trajectory, map.ply, metrics.json and side-by-side renders.
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <future>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+#include <tbb/global_control.h>
+
+#include "commands.hpp"
+#include "dataset_args.hpp"
+#include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/eval/ate.hpp"
+#include "fslam/core/eval/image_metrics.hpp"
+#include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/core/io/image_io.hpp"
+#include "fslam/core/io/trajectory_io.hpp"
+#include "fslam/core/mapping/image_losses.hpp"
+#include "fslam/core/pipeline/slam_pipeline.hpp"
+#include "fslam/server/backend_factory.hpp"
+
+namespace fslam::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+struct RunArgs {
+  DatasetArgs dataset;
+  std::string out;
+  int refine = 0;
+  double realtime_fps = 0.0;  // 0: as fast as it can
+  int threads = 2;
+  int iterations = -1;        // < 0: the config default
+  int sh_degree = 0;
+  std::string resume;
+  int renders = 4;
+  std::string backend = "auto";
+  int eval_every = 8;
+};
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+double peak_rss_mib() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is KiB on Linux
+}
+
+nlohmann::json timing_json(const std::vector<double>& samples) {
+  if (samples.empty()) return {{"count", 0}};
+  const core::ErrorStats s = core::summarize_errors(samples);
+  return {{"count", samples.size()},
+          {"median_ms", s.median},
+          {"p99_ms", percentile(samples, 0.99)},
+          {"mean_ms", s.mean},
+          {"max_ms", s.max}};
+}
+
+cv::Mat to_rgb8(const core::PlanarImage& image) {
+  cv::Mat out(image.height, image.width, CV_8UC3);
+  for (int v = 0; v < image.height; ++v)
+    for (int u = 0; u < image.width; ++u)
+      for (int c = 0; c < 3; ++c)
+        out.at<cv::Vec3b>(v, u)[c] =
+            cv::saturate_cast<uchar>(std::lround(255.0f * std::clamp(image.at(c, v, u), 0.f, 1.f)));
+  return out;
+}
+
+cv::Mat depth_to_rgb8(const cv::Mat& depth_m, double max_depth) {
+  cv::Mat scaled;
+  depth_m.convertTo(scaled, CV_8U, 255.0 / max_depth);
+  cv::Mat coloured;
+  cv::applyColorMap(scaled, coloured, cv::COLORMAP_TURBO);
+  cv::cvtColor(coloured, coloured, cv::COLOR_BGR2RGB);
+  coloured.setTo(cv::Scalar(0, 0, 0), depth_m <= 0.0f);
+  return coloured;
+}
+
+cv::Mat plane_to_mat(const core::PlanarImage& image, int channel) {
+  cv::Mat out(image.height, image.width, CV_32FC1);
+  std::copy(image.plane(channel), image.plane(channel) + image.pixels(), out.ptr<float>());
+  return out;
+}
+
+struct EvalSet {
+  std::vector<double> psnr, ssim, depth_l1_cm;
+  nlohmann::json to_json() const {
+    auto mean = [](const std::vector<double>& v) {
+      double s = 0;
+      for (double x : v) s += x;
+      return v.empty() ? 0.0 : s / static_cast<double>(v.size());
+    };
+    return {{"frames", psnr.size()},
+            {"psnr_db", mean(psnr)},
+            {"ssim", mean(ssim)},
+            {"depth_l1_cm", mean(depth_l1_cm)}};
+  }
+};
+
+int run_slam(const RunArgs& args) {
+  core::DatasetOptions options;
+  std::string why;
+  if (!args.dataset.to_options(&options, &why)) return fail(why);
+  const std::unique_ptr<core::Dataset> dataset = core::open_dataset(args.dataset.path, options, &why);
+  if (!dataset) return fail(why);
+  if (args.threads < 1) return fail("--threads must be >= 1");
+  if (args.realtime_fps < 0.0) return fail("--realtime must be > 0 frames per second");
+  if (args.refine < 0) return fail("--refine must be >= 0");
+  std::string notice;
+  std::shared_ptr<const core::Rasterizer> rasterizer =
+      server::make_rasterizer(args.backend, &notice, &why);
+  if (!rasterizer) return fail(why);
+  if (!notice.empty()) std::fprintf(stderr, "%s\n", notice.c_str());
+
+  core::PipelineConfig config;
+  config.realtime = args.realtime_fps > 0.0;
+  config.mapper.sh_degree = args.sh_degree;
+  config.mapper.feature_dim = 0;  // no feature encoder yet: features train when one is configured
+  if (args.iterations >= 0) config.mapper.iterations_per_keyframe = args.iterations;
+  if (!config.is_valid(&why)) return fail("config: " + why);
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                              static_cast<std::size_t>(args.threads));
+  std::error_code ec;
+  fs::create_directories(fs::path(args.out) / "renders", ec);
+  if (ec) return fail("cannot create " + args.out + ": " + ec.message());
+
+  core::SlamPipeline pipeline(config, rasterizer);
+  if (!args.resume.empty()) {
+    core::GaussianMap resumed;
+    if (!core::read_gaussian_ply(args.resume, &resumed, &why)) return fail(why);
+    resumed.feature_dim = std::min(resumed.feature_dim, config.mapper.feature_dim);
+    resumed.features.clear();
+    if (!pipeline.mapper().set_map(resumed, &why)) return fail(args.resume + ": " + why);
+    std::fprintf(stderr, "resumed %zu Gaussians from %s\n", resumed.size(), args.resume.c_str());
+  }
+  const std::size_t n = dataset->size();
+  std::fprintf(stderr, "running SLAM on %zu frames of %s (%s), %d thread(s), %s\n", n,
+               dataset->root().c_str(), dataset->kind().c_str(), args.threads,
+               config.realtime ? ("real time at " + std::to_string(args.realtime_fps) + " fps").c_str()
+                               : "as fast as it can");
+
+  // Mapping thread.
+  std::vector<double> keyframe_ms;
+  std::atomic<std::size_t> mapped{0};
+  std::string mapping_error;
+  const Clock::time_point start = Clock::now();
+  std::thread mapping([&] {
+    std::string mwhy;
+    if (!pipeline.run_mapping(
+            [&](const core::KeyframeReport& r) {
+              keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms +
+                                    r.refinement.prune_ms);
+              mapped.fetch_add(1);
+            },
+            &mwhy)) {
+      mapping_error = mwhy.empty() ? "mapping failed" : mwhy;
+    }
+  });
+
+  // Tracking on this thread, frames decoded one ahead on another.
+  core::Trajectory trajectory;
+  std::vector<std::size_t> frame_index;  // dataset index of each trajectory entry
+  std::vector<bool> is_keyframe;
+  std::vector<double> track_ms;
+  std::size_t lost = 0, skipped = 0;
+  Progress progress("slam", n);
+  auto load_frame = [&](std::size_t i) {
+    auto frame = std::make_shared<core::RgbdFrame>();
+    std::string load_why;
+    if (!dataset->load(i, frame.get(), &load_why)) throw std::runtime_error(load_why);
+    return frame;
+  };
+  std::future<std::shared_ptr<core::RgbdFrame>> next = std::async(std::launch::async, load_frame, 0);
+  const double period_s = config.realtime ? 1.0 / args.realtime_fps : 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    std::shared_ptr<core::RgbdFrame> frame = next.get();
+    if (i + 1 < n) next = std::async(std::launch::async, load_frame, i + 1);
+    if (config.realtime) {
+      // A live sensor: frame i arrives at start + i / fps. When the next frame has already
+      // arrived, this one is stale and a live system would never see it: count it as skipped.
+      const double now_s = std::chrono::duration<double>(Clock::now() - start).count();
+      const double arrival = static_cast<double>(i) * period_s;
+      if (now_s < arrival) {
+        std::this_thread::sleep_for(std::chrono::duration<double>(arrival - now_s));
+      } else if (i > 0 && now_s >= arrival + period_s) {
+        ++skipped;
+        progress.update(i + 1);
+        continue;
+      }
+    }
+    if (i == 0 && frame->T_world_camera_gt) pipeline.set_initial_pose(*frame->T_world_camera_gt);
+    core::TrackingResult result;
+    const Clock::time_point t0 = Clock::now();
+    if (!pipeline.process_frame(*frame, &result, &why)) {
+      pipeline.finish();
+      mapping.join();
+      return fail(why);
+    }
+    if (i > 0) track_ms.push_back(ms_between(t0, Clock::now()));
+    if (result.state == core::TrackingState::lost) {
+      ++lost;
+      std::fprintf(stderr, "\nframe %lld: %s\n", static_cast<long long>(frame->id),
+                   result.message.c_str());
+    }
+    trajectory.push_back({frame->timestamp, result.T_world_camera});
+    frame_index.push_back(i);
+    is_keyframe.push_back(result.keyframe);
+    progress.update(i + 1);
+  }
+  progress.finish();
+  const Clock::time_point tracking_done = Clock::now();
+  pipeline.finish();
+  std::fprintf(stderr, "tracking done in %.1f s; mapping %zu queued keyframe(s)\n",
+               ms_between(start, tracking_done) / 1000.0, pipeline.queued_keyframes());
+  mapping.join();
+  if (!mapping_error.empty()) return fail(mapping_error);
+  const Clock::time_point mapping_done = Clock::now();
+  if (args.refine > 0) {
+    std::fprintf(stderr, "post-trajectory refinement: %d steps\n", args.refine);
+    if (!pipeline.refine(args.refine, &why)) return fail(why);
+  }
+  const Clock::time_point refine_done = Clock::now();
+  const double slam_s = ms_between(start, mapping_done) / 1000.0;
+
+  // Outputs.
+  const fs::path out(args.out);
+  if (!core::write_tum_trajectory((out / "trajectory.txt").string(), trajectory, &why)) return fail(why);
+  const core::GaussianMap& map = pipeline.mapper().map();
+  if (!core::write_gaussian_ply((out / "map.ply").string(), map, &why)) return fail(why);
+
+  nlohmann::json metrics;
+  metrics["dataset"] = {{"path", dataset->root()}, {"kind", dataset->kind()}, {"frames", n}};
+  metrics["mode"] = config.realtime ? "realtime" : "fast";
+  if (config.realtime) metrics["realtime_fps"] = args.realtime_fps;
+  metrics["threads"] = args.threads;
+  if (dataset->has_ground_truth()) {
+    core::AteResult ate;
+    if (core::compute_ate(dataset->ground_truth(), trajectory, core::AteConfig{}, &ate, &why)) {
+      metrics["ate"] = {{"rmse_m", ate.rmse}, {"mean_m", ate.mean}, {"median_m", ate.median},
+                        {"max_m", ate.max},   {"pairs", ate.pairs}, {"alignment", "SE3"}};
+      std::printf("ATE RMSE %.4f m (mean %.4f) over %zu frames, SE(3)\n", ate.rmse, ate.mean,
+                  ate.pairs);
+    } else {
+      std::fprintf(stderr, "ATE: %s\n", why.c_str());
+    }
+  }
+
+  // Rendering metrics on held-out frames (every eval_every-th non-keyframe, never trained on)
+  // and on the keyframes, from the final map at the tracked poses, full input resolution.
+  EvalSet held_out, keyframes;
+  std::vector<std::size_t> render_frames;
+  std::size_t non_keyframes = 0;
+  std::vector<std::pair<std::size_t, bool>> eval_list;  // trajectory entry, is held out
+  for (std::size_t k = 0; k < trajectory.size(); ++k) {
+    if (is_keyframe[k]) {
+      eval_list.push_back({k, false});
+    } else if (non_keyframes++ % static_cast<std::size_t>(args.eval_every) == 0) {
+      eval_list.push_back({k, true});
+    }
+  }
+  std::vector<std::size_t> held_out_entries;
+  for (const auto& e : eval_list)
+    if (e.second) held_out_entries.push_back(e.first);
+  for (int r = 0; r < args.renders && !held_out_entries.empty(); ++r) {
+    render_frames.push_back(held_out_entries[held_out_entries.size() * static_cast<std::size_t>(r) /
+                                             static_cast<std::size_t>(args.renders)]);
+  }
+  core::RenderSettings settings = config.mapper.render;
+  settings.features = false;
+  Progress eval_progress("evaluate", eval_list.size());
+  std::size_t evaluated = 0;
+  for (const auto& [k, held] : eval_list) {
+    core::RgbdFrame frame;
+    if (!dataset->load(frame_index[k], &frame, &why)) return fail(why);
+    core::RenderView view;
+    view.camera = frame.camera;
+    view.T_camera_world = trajectory[k].T_world_camera.inverse();
+    core::RenderResult rendered;
+    if (!rasterizer->forward(map, view, settings, &rendered, &why)) return fail(why);
+    cv::Mat rgb = to_rgb8(rendered.colour);
+    core::ImageMetricsConfig mc;
+    double psnr = 0, ssim = 0;
+    core::DepthL1Result depth;
+    const cv::Mat median = plane_to_mat(rendered.median_depth, 0);
+    if (!core::compute_psnr(rgb, frame.colour, mc, &psnr, &why) ||
+        !core::compute_ssim(rgb, frame.colour, mc, &ssim, &why) ||
+        !core::compute_depth_l1(median, frame.depth, cv::Mat(), &depth, &why)) {
+      return fail("metrics of frame " + std::to_string(frame.id) + ": " + why);
+    }
+    EvalSet& set = held ? held_out : keyframes;
+    set.psnr.push_back(psnr);
+    set.ssim.push_back(ssim);
+    set.depth_l1_cm.push_back(depth.l1_cm);
+    if (std::find(render_frames.begin(), render_frames.end(), k) != render_frames.end()) {
+      core::PlanarImage normals;
+      core::depth_to_normals(rendered.median_depth, frame.camera.intrinsics(), &normals, &why);
+      cv::Mat nrm(normals.height, normals.width, CV_8UC3);
+      for (int v = 0; v < normals.height; ++v)
+        for (int u = 0; u < normals.width; ++u)
+          for (int c = 0; c < 3; ++c)
+            nrm.at<cv::Vec3b>(v, u)[c] = cv::saturate_cast<uchar>(
+                std::lround(127.5f * (1.0f - normals.at(c, v, u))));
+      const double max_depth = 5.0;
+      cv::Mat top, bottom, panel;
+      cv::hconcat(frame.colour, rgb, top);
+      cv::hconcat(depth_to_rgb8(frame.depth, max_depth), depth_to_rgb8(median, max_depth), bottom);
+      cv::Mat blank(frame.colour.rows, frame.colour.cols, CV_8UC3, cv::Scalar(0, 0, 0));
+      cv::Mat third;
+      cv::hconcat(blank, nrm, third);
+      cv::vconcat(std::vector<cv::Mat>{top, bottom, third}, panel);
+      const std::string name = "frame_" + std::to_string(frame.id) + ".png";
+      if (!core::write_image((out / "renders" / name).string(), panel, &why)) return fail(why);
+    }
+    eval_progress.update(++evaluated);
+  }
+  eval_progress.finish();
+  metrics["held_out"] = held_out.to_json();
+  metrics["held_out"]["rule"] = "every " + std::to_string(args.eval_every) +
+                                "th non-keyframe frame; never used for training";
+  metrics["keyframes"] = keyframes.to_json();
+  metrics["depth_rendering"] = "median depth; pixels with valid sensor depth, holes count fully";
+  metrics["map"] = {{"gaussians", map.size()},
+                    {"keyframes", pipeline.mapper().keyframe_count()},
+                    {"optimisation_steps", pipeline.mapper().total_steps()}};
+  metrics["timing"] = {{"slam_wall_s", slam_s},
+                       {"frames_per_second", static_cast<double>(n) / slam_s},
+                       {"tracking_wall_s", ms_between(start, tracking_done) / 1000.0},
+                       {"refine_s", ms_between(mapping_done, refine_done) / 1000.0},
+                       {"tracking_per_frame", timing_json(track_ms)},
+                       {"mapping_per_keyframe", timing_json(keyframe_ms)}};
+  metrics["frames"] = {{"tracked", trajectory.size()}, {"lost", lost}, {"skipped", skipped},
+                       {"keyframes", std::count(is_keyframe.begin(), is_keyframe.end(), true)}};
+  metrics["memory"] = {{"peak_rss_mib", peak_rss_mib()}};
+  std::ofstream(out / "metrics.json") << metrics.dump(2) << "\n";
+
+  std::printf("frames %zu (skipped %zu, lost %zu), keyframes %zu, map %zu Gaussians\n", n, skipped,
+              lost, pipeline.mapper().keyframe_count(), map.size());
+  std::printf("SLAM wall time %.1f s = %.2f frames/s (%d thread(s)); peak RSS %.0f MiB\n", slam_s,
+              static_cast<double>(n) / slam_s, args.threads, peak_rss_mib());
+  std::printf("held-out frames %zu: PSNR %.2f dB, SSIM %.3f, depth L1 %.2f cm\n",
+              held_out.psnr.size(), held_out.to_json()["psnr_db"].get<double>(),
+              held_out.to_json()["ssim"].get<double>(),
+              held_out.to_json()["depth_l1_cm"].get<double>());
+  std::printf("keyframes %zu: PSNR %.2f dB, SSIM %.3f, depth L1 %.2f cm\n", keyframes.psnr.size(),
+              keyframes.to_json()["psnr_db"].get<double>(), keyframes.to_json()["ssim"].get<double>(),
+              keyframes.to_json()["depth_l1_cm"].get<double>());
+  std::printf("wrote %s/{trajectory.txt,map.ply,metrics.json,renders/}\n", args.out.c_str());
+  return 0;
+}
+
+}  // namespace
+
+void add_run_command(CLI::App& root, CommandList* commands) {
+  auto* app = root.add_subcommand(
+      "run", "Track and map a dataset (3DGS mapping on a second thread); writes the trajectory, "
+             "map.ply, metrics.json and renders");
+  auto args = std::make_shared<RunArgs>();
+  add_dataset_options(app, &args->dataset);
+  app->add_option("--out", args->out, "Output folder")->required();
+  app->add_option("--refine", args->refine, "Post-trajectory refinement steps (0 = off)")
+      ->capture_default_str();
+  app->add_option("--realtime", args->realtime_fps,
+                  "Pace the input like a live sensor at this many frames per second; mapping "
+                  "gets the time that is left (default: as fast as it can)");
+  app->add_option("--threads", args->threads, "Threads for rendering and optimisation")
+      ->capture_default_str();
+  app->add_option("--iterations", args->iterations,
+                  "Gradient steps per keyframe (default: the mapper config's)");
+  app->add_option("--sh-degree", args->sh_degree, "Spherical-harmonics degree 0-3")
+      ->capture_default_str();
+  app->add_option("--resume", args->resume, "Start from a saved map.ply");
+  app->add_option("--renders", args->renders, "Held-out frames rendered beside the input")
+      ->capture_default_str();
+  app->add_option("--backend", args->backend, "Compute backend: auto, cpu or cuda")
+      ->capture_default_str();
+  app->add_option("--eval-every", args->eval_every,
+                  "Every n-th non-keyframe frame is held out for evaluation")
+      ->capture_default_str();
+  commands->push_back({app, [args] { return run_slam(*args); }});
+}
+
+}  // namespace fslam::cli
