@@ -100,6 +100,7 @@ class CpuRasterizer final : public Rasterizer {
     result->stats.visible = state->raster.visible;
     result->stats.tile_entries = state->raster.tile_ids.size();
     result->stats.blend_steps = state->raster.blend_steps;
+    result->stats.evaluated_pairs = state->raster.evaluated_pairs;
     result->backward_state = std::move(state);
     return true;
   }

@@ -502,6 +502,25 @@ FSLAM_HD T splat_alpha(const ProjectedGaussian<T>& g, T px, T py, T* gaussian) {
   return alpha < T(kAlphaMax) ? alpha : T(kAlphaMax);
 }
 
+// Pixel columns of row py whose centres can lie inside the Gaussian's footprint
+// (power >= power_floor): [*x_begin, *x_end). Conservative by 0.01 px so that splat_alpha stays
+// the only decision; false when the row misses the footprint.
+template <typename T>
+FSLAM_HD bool splat_row_span(const ProjectedGaussian<T>& g, T py, int* x_begin, int* x_end) {
+  // -0.5 (c0 dx^2 + 2 c1 dx dy + c2 dy^2) >= floor  <=>  c0 dx^2 + 2 c1 dy dx + c2 dy^2 - level <= 0
+  const T dy = py - g.v;
+  const T level = T(-2) * g.power_floor;
+  const T b = g.conic[1] * dy;
+  const T disc = b * b - g.conic[0] * (g.conic[2] * dy * dy - level);
+  if (disc < T(0)) return false;
+  const T root = sqrt(disc);
+  const T lo = g.u + (-b - root) / g.conic[0] - T(0.01);
+  const T hi = g.u + (-b + root) / g.conic[0] + T(0.01);
+  *x_begin = static_cast<int>(ceil(lo));
+  *x_end = static_cast<int>(floor(hi)) + 1;
+  return *x_end > *x_begin;
+}
+
 // Camera-plane depth of the Gaussian at pixel (px, py): beta^T [x - mu2D; 1].
 template <typename T>
 FSLAM_HD T splat_planar_depth(const ProjectedGaussian<T>& g, T px, T py) {

@@ -84,7 +84,8 @@ struct RasterState {
   std::vector<std::int32_t> pixel_end;     // [H * W] exclusive end of the pixel's splats (tile list)
   std::vector<std::int32_t> pixel_median;  // [H * W] tile-list index of the median splat, -1 none
   std::size_t visible = 0;
-  std::uint64_t blend_steps = 0;  // splat-pixel pairs evaluated (alpha computed)
+  std::uint64_t evaluated_pairs = 0;  // splat-pixel pairs whose alpha was computed
+  std::uint64_t blend_steps = 0;      // splat-pixel pairs composited (alpha >= 1/255)
 };
 
 template <typename T>
@@ -169,59 +170,89 @@ void rasterize_forward(const SplatScene<T>& scene, const math::SplatCamera<T>& c
   st.pixel_end.assign(plane, 0);
   st.pixel_median.assign(plane, -1);
   const int tiles = st.tiles_x * st.tiles_y;
-  tbb::enumerable_thread_specific<std::uint64_t> steps(0);
+  tbb::enumerable_thread_specific<std::uint64_t> evaluated(0), blended(0);
   tbb::parallel_for(tbb::blocked_range<int>(0, tiles), [&](const auto& r) {
-    std::vector<T> feat(static_cast<std::size_t>(D));
-    std::uint64_t& step_count = steps.local();
+    // Per-pixel compositing state of one tile, advanced splat by splat (front to back) over the
+    // pixels each splat's footprint covers: every pixel still sees its splats in depth order.
+    constexpr int kPixels = kTileSize * kTileSize;
+    std::vector<T> trans(kPixels), acc(static_cast<std::size_t>(kPixels) * (4 + D)), median(kPixels);
+    std::vector<std::int32_t> end_index(kPixels), median_index(kPixels);
+    std::uint64_t& eval_count = evaluated.local();
+    std::uint64_t& blend_count = blended.local();
     for (int t = r.begin(); t != r.end(); ++t) {
       const int tx = t % st.tiles_x, ty = t / st.tiles_x;
-      const std::uint32_t begin = st.tile_offsets[t], end = st.tile_offsets[t + 1];
-      for (int py = ty * kTileSize; py < std::min(H, (ty + 1) * kTileSize); ++py) {
-        for (int px = tx * kTileSize; px < std::min(W, (tx + 1) * kTileSize); ++px) {
-          const std::size_t pix = static_cast<std::size_t>(py) * W + px;
-          T Tr = T(1), colour[3] = {T(0), T(0), T(0)}, depth = T(0), median = T(0);
-          std::fill(feat.begin(), feat.end(), T(0));
-          std::int32_t median_index = -1;
-          std::uint32_t j = begin;
-          for (; j < end; ++j) {
-            const std::uint32_t id = st.tile_ids[j];
-            const math::ProjectedGaussian<T>& g = st.projected[id];
-            ++step_count;
+      const int x0 = tx * kTileSize, y0 = ty * kTileSize;
+      const int x1 = std::min(W, x0 + kTileSize), y1 = std::min(H, y0 + kTileSize);
+      const std::uint32_t begin = st.tile_offsets[t], count = st.tile_offsets[t + 1] - begin;
+      std::fill(trans.begin(), trans.end(), T(1));
+      std::fill(acc.begin(), acc.end(), T(0));
+      std::fill(median.begin(), median.end(), T(0));
+      std::fill(end_index.begin(), end_index.end(), static_cast<std::int32_t>(count));
+      std::fill(median_index.begin(), median_index.end(), -1);
+      int active = (x1 - x0) * (y1 - y0);
+      for (std::uint32_t j = 0; j < count && active > 0; ++j) {
+        const std::uint32_t id = st.tile_ids[begin + j];
+        const math::ProjectedGaussian<T>& g = st.projected[id];
+        const T* f = D > 0 ? scene.features + static_cast<std::size_t>(id) * scene.feature_dim : nullptr;
+        const int gy0 = std::max(y0, static_cast<int>(std::ceil(g.v - g.extent[1])));
+        const int gy1 = std::min(y1, static_cast<int>(std::floor(g.v + g.extent[1])) + 1);
+        for (int py = gy0; py < gy1; ++py) {
+          int sx0, sx1;
+          if (!math::splat_row_span(g, T(py), &sx0, &sx1)) continue;
+          sx0 = std::max(sx0, x0);
+          sx1 = std::min(sx1, x1);
+          for (int px = sx0; px < sx1; ++px) {
+            const int lp = (py - y0) * kTileSize + (px - x0);
+            if (end_index[lp] != static_cast<std::int32_t>(count)) continue;  // terminated
+            ++eval_count;
             T gauss;
             const T alpha = math::splat_alpha(g, T(px), T(py), &gauss);
             if (alpha == T(0)) continue;
+            const T Tr = trans[lp];
             const T next = Tr * (T(1) - alpha);
-            if (next < T(math::kTransmittanceMin)) break;
+            if (next < T(math::kTransmittanceMin)) {
+              end_index[lp] = static_cast<std::int32_t>(j);
+              --active;
+              continue;
+            }
+            ++blend_count;
             const T w = alpha * Tr;
             const T d = math::splat_planar_depth(g, T(px), T(py));
-            colour[0] += w * g.colour[0];
-            colour[1] += w * g.colour[1];
-            colour[2] += w * g.colour[2];
-            depth += w * d;
-            if (D > 0) {
-              const T* f = scene.features + static_cast<std::size_t>(id) * scene.feature_dim;
-              for (int c = 0; c < D; ++c) feat[c] += w * f[c];
+            T* a = acc.data() + static_cast<std::size_t>(lp) * (4 + D);
+            a[0] += w * g.colour[0];
+            a[1] += w * g.colour[1];
+            a[2] += w * g.colour[2];
+            a[3] += w * d;
+            for (int c = 0; c < D; ++c) a[4 + c] += w * f[c];
+            if (median_index[lp] < 0 && next < T(0.5)) {
+              median_index[lp] = static_cast<std::int32_t>(j);
+              median[lp] = d;
             }
-            if (median_index < 0 && next < T(0.5)) {
-              median_index = static_cast<std::int32_t>(j - begin);
-              median = d;
-            }
-            Tr = next;
+            trans[lp] = next;
           }
-          st.pixel_end[pix] = static_cast<std::int32_t>(j - begin);
-          st.pixel_median[pix] = median_index;
-          for (int c = 0; c < 3; ++c) out.colour[c * plane + pix] = colour[c] + Tr * background[c];
-          out.depth[pix] = depth;
-          out.alpha[pix] = T(1) - Tr;
-          if (out.median_depth != nullptr) out.median_depth[pix] = median;
+        }
+      }
+      for (int py = y0; py < y1; ++py) {
+        for (int px = x0; px < x1; ++px) {
+          const int lp = (py - y0) * kTileSize + (px - x0);
+          const std::size_t pix = static_cast<std::size_t>(py) * W + px;
+          const T* a = acc.data() + static_cast<std::size_t>(lp) * (4 + D);
+          st.pixel_end[pix] = end_index[lp];
+          st.pixel_median[pix] = median_index[lp];
+          for (int c = 0; c < 3; ++c) out.colour[c * plane + pix] = a[c] + trans[lp] * background[c];
+          out.depth[pix] = a[3];
+          out.alpha[pix] = T(1) - trans[lp];
+          if (out.median_depth != nullptr) out.median_depth[pix] = median[lp];
           if (out.features != nullptr)
-            for (int c = 0; c < D; ++c) out.features[c * plane + pix] = feat[c];
+            for (int c = 0; c < D; ++c) out.features[c * plane + pix] = a[4 + c];
         }
       }
     }
   });
+  st.evaluated_pairs = 0;
   st.blend_steps = 0;
-  for (std::uint64_t s : steps) st.blend_steps += s;
+  for (std::uint64_t s : evaluated) st.evaluated_pairs += s;
+  for (std::uint64_t s : blended) st.blend_steps += s;
 }
 
 // Per-Gaussian 2D gradients as one thread accumulates them: [N, stride] with
@@ -282,8 +313,14 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
         T imp_rgb = T(0), imp_feat = T(0);
         std::fill(splat_grad.begin() + kGrad2dFixed, splat_grad.end(), T(0));
         bool touched = false;
-        for (int ly = 0; ly < th; ++ly) {
-          for (int lx = 0; lx < tw; ++lx) {
+        const int gy0 = std::max(0, static_cast<int>(std::ceil(g.v - g.extent[1])) - y0);
+        const int gy1 = std::min(th, static_cast<int>(std::floor(g.v + g.extent[1])) + 1 - y0);
+        for (int ly = gy0; ly < gy1; ++ly) {
+          int sx0, sx1;
+          if (!math::splat_row_span(g, T(y0 + ly), &sx0, &sx1)) continue;
+          sx0 = std::max(sx0 - x0, 0);
+          sx1 = std::min(sx1 - x0, tw);
+          for (int lx = sx0; lx < sx1; ++lx) {
             const std::size_t pix = static_cast<std::size_t>(y0 + ly) * W + x0 + lx;
             if (j >= st.pixel_end[pix]) continue;
             const int px = x0 + lx, py = y0 + ly;

@@ -33,7 +33,8 @@ struct RenderStats {
   std::size_t pixels = 0;            // in the image
   std::size_t visible = 0;           // projected inside the view
   std::size_t tile_entries = 0;      // (Gaussian, tile) pairs after binning
-  std::uint64_t blend_steps = 0;     // Gaussian-pixel pairs evaluated by the forward pass
+  std::uint64_t blend_steps = 0;     // Gaussian-pixel pairs composited (alpha >= 1/255)
+  std::uint64_t evaluated_pairs = 0; // pairs whose alpha the forward pass computed
   double mean_splats_per_pixel() const;
 };
 
