@@ -25,6 +25,7 @@
 #include "commands.hpp"
 #include "dataset_args.hpp"
 #include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/error.hpp"
 #include "fslam/core/eval/ate.hpp"
 #include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
@@ -52,7 +53,44 @@ struct RunArgs {
   int renders = 4;
   std::string backend = "auto";
   int eval_every = 8;
+  double prune_tracking = -1, prune_mapping = -1;  // < 0: the config defaults
+  double training_scale = -1;
+  int insert_stride = -1;
+  std::vector<std::string> overrides;  // key=value for the mapper's numeric settings
 };
+
+// `--set key=value` for the mapper's numeric settings, the same names as in MapperConfig.
+bool apply_override(const std::string& item, core::MapperConfig* c, std::string* why) {
+  const auto eq = item.find('=');
+  if (eq == std::string::npos) return core::fail(why, "--set expects key=value, got '" + item + "'");
+  const std::string key = item.substr(0, eq);
+  double value = 0;
+  try {
+    value = std::stod(item.substr(eq + 1));
+  } catch (const std::exception&) {
+    return core::fail(why, "--set " + key + ": not a number");
+  }
+  core::MappingLossWeights& l = c->loss;
+  const std::vector<std::pair<const char*, double*>> doubles = {
+      {"loss.rgb_l1", &l.rgb_l1}, {"loss.rgb_ssim", &l.rgb_ssim}, {"loss.feature_l1", &l.feature_l1},
+      {"loss.depth_l1", &l.depth_l1}, {"loss.depth_pcc", &l.depth_pcc}, {"loss.normal", &l.normal},
+      {"loss.erank_lambda_0", &l.erank_lambda_0}, {"loss.erank_lambda_max", &l.erank_lambda_max},
+      {"loss.erank_ramp_steps", &l.erank_ramp_steps}, {"loss.thin", &l.thin},
+      {"newest_keyframe_probability", &c->newest_keyframe_probability},
+      {"mapping_keyframe_translation", &c->mapping_keyframe_translation}};
+  const std::vector<std::pair<const char*, float*>> floats = {
+      {"new_alpha", &c->new_alpha}, {"new_depth_margin", &c->new_depth_margin},
+      {"initial_opacity", &c->initial_opacity}, {"initial_scale_factor", &c->initial_scale_factor},
+      {"initial_thickness", &c->initial_thickness}, {"max_scale", &c->max_scale},
+      {"min_opacity", &c->min_opacity}, {"lr.means", &c->learning_rates.means},
+      {"lr.sh_dc", &c->learning_rates.sh_dc}, {"lr.opacity", &c->learning_rates.opacity},
+      {"lr.log_scales", &c->learning_rates.log_scales}, {"lr.rotations", &c->learning_rates.rotations}};
+  for (const auto& [name, field] : doubles)
+    if (key == name) return (*field = value, true);
+  for (const auto& [name, field] : floats)
+    if (key == name) return (*field = static_cast<float>(value), true);
+  return core::fail(why, "--set: unknown mapper setting '" + key + "'");
+}
 
 double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
@@ -135,6 +173,12 @@ int run_slam(const RunArgs& args) {
   config.mapper.sh_degree = args.sh_degree;
   config.mapper.feature_dim = 0;  // no feature encoder yet: features train when one is configured
   if (args.iterations >= 0) config.mapper.iterations_per_keyframe = args.iterations;
+  if (args.prune_tracking >= 0) config.mapper.prune_percentile_tracking = args.prune_tracking;
+  if (args.prune_mapping >= 0) config.mapper.prune_percentile_mapping = args.prune_mapping;
+  if (args.training_scale > 0) config.mapper.training_scale = args.training_scale;
+  if (args.insert_stride > 0) config.mapper.insert_stride = args.insert_stride;
+  for (const std::string& item : args.overrides)
+    if (!apply_override(item, &config.mapper, &why)) return fail(why);
   if (!config.is_valid(&why)) return fail("config: " + why);
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(args.threads));
@@ -394,6 +438,16 @@ void add_run_command(CLI::App& root, CommandList* commands) {
   app->add_option("--eval-every", args->eval_every,
                   "Every n-th non-keyframe frame is held out for evaluation")
       ->capture_default_str();
+  app->add_option("--prune-tracking", args->prune_tracking,
+                  "Importance-pruning percentile on tracking keyframes, 0..1 (default 0.10)");
+  app->add_option("--prune-mapping", args->prune_mapping,
+                  "Importance-pruning percentile on mapping keyframes, 0..1 (default 0.30)");
+  app->add_option("--training-scale", args->training_scale,
+                  "Training renders at this fraction of the input size (default 0.5)");
+  app->add_option("--insert-stride", args->insert_stride,
+                  "Pixel stride of new Gaussians on the training image (default 2)");
+  app->add_option("--set", args->overrides,
+                  "Override a numeric mapper setting, key=value (e.g. loss.erank_lambda_max=0)");
   commands->push_back({app, [args] { return run_slam(*args); }});
 }
 

@@ -253,20 +253,20 @@ bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* 
   return true;
 }
 
-std::size_t Mapper::prune(double percentile) {
+std::size_t Mapper::prune(double percentile, std::size_t first_candidate) {
   const std::size_t n = map_.size();
   std::vector<std::uint8_t> keep(n, 1);
   std::size_t pruned_importance = 0;
-  // Eq. pruning_set over the Gaussians this round saw: the rest have no importance evidence.
+  // Eq. pruning_set over the candidates this round saw (the rest have no importance evidence).
   std::vector<float> scores;
-  for (std::size_t i = 0; i < n; ++i) {
+  for (std::size_t i = first_candidate; i < n; ++i) {
     if (seen_[i]) scores.push_back(importance_[i]);
   }
   if (percentile > 0.0 && scores.size() > 10) {
     const std::size_t k = static_cast<std::size_t>(percentile * static_cast<double>(scores.size()));
     std::nth_element(scores.begin(), scores.begin() + k, scores.end());
     const float threshold = scores[k];
-    for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t i = first_candidate; i < n; ++i) {
       if (seen_[i] && importance_[i] < threshold) {
         keep[i] = 0;
         ++pruned_importance;
@@ -341,8 +341,10 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   t0 = std::chrono::steady_clock::now();
   const std::size_t before = map_.size();
   if (s.iterations > 0) {
+    const std::size_t first = config_.prune_new_only ? map_.size() - s.inserted : 0;
     s.pruned_importance = prune(s.mapping_keyframe ? config_.prune_percentile_mapping
-                                                   : config_.prune_percentile_tracking);
+                                                   : config_.prune_percentile_tracking,
+                                first);
   }
   s.pruned_standard = before - map_.size() - s.pruned_importance;
   s.prune_ms = ms_since(t0);

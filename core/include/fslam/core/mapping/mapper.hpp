@@ -66,6 +66,10 @@ struct MapperConfig {
   // mapping keyframe when it moved at least this far from the last mapping keyframe.
   double prune_percentile_tracking = 0.10;
   double prune_percentile_mapping = 0.30;
+  // The candidates of eq. pruning_set: the Gaussians this round inserted ("the gradient-based
+  // impact of new Gaussians", paper), or every Gaussian the round saw when false
+  // (docs/mapping.md: measured, the latter empties the map).
+  bool prune_new_only = true;
   double mapping_keyframe_translation = 0.15;  // metres
   double mapping_keyframe_rotation_deg = 9.0;
   // Standard 3DGS pruning after each round.
@@ -147,7 +151,7 @@ class Mapper {
   bool store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::string* why) const;
   std::size_t insert_gaussians(const StoredKeyframe& kf);
   bool step(const StoredKeyframe& kf, MappingLosses* losses, std::string* why);
-  std::size_t prune(double percentile);
+  std::size_t prune(double percentile, std::size_t first_candidate);
   void recompute_filter_3d(std::size_t first);
   void publish();
   std::size_t sample_keyframe(bool uniform);

@@ -1,0 +1,198 @@
+// The online mapper on the synthetic room: Gaussians from keyframes, training on the paper's
+// total loss, held-out quality, insertion only where the map is unexplained, feature channels,
+// pruning bounds and bad input.
+#include <cmath>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "fslam/core/eval/image_metrics.hpp"
+#include "fslam/core/mapping/mapper.hpp"
+#include "fslam/core/synth/synthetic_scene.hpp"
+
+namespace fslam::core {
+namespace {
+
+struct Fixture {
+  SyntheticRoom room = make_room(3);
+  Trajectory trajectory;
+  PinholeCamera camera = synth_default_camera().scaled(0.25);  // 160x120: fast enough for CI
+  Fixture() {
+    SynthOptions options;
+    options.frames = 40;
+    trajectory = make_trajectory(room, options);
+  }
+  MapperKeyframe keyframe(std::size_t k) const {
+    const SynthView view = render_view(room, camera, trajectory[k].T_world_camera);
+    MapperKeyframe kf;
+    kf.frame_id = static_cast<std::int64_t>(k);
+    kf.T_world_camera = trajectory[k].T_world_camera;
+    kf.camera = camera;
+    kf.colour = view.colour;
+    kf.depth = view.depth;
+    return kf;
+  }
+};
+
+MapperConfig small_config() {
+  MapperConfig config;
+  config.training_scale = 1.0;
+  config.insert_stride = 1;
+  config.feature_dim = 0;
+  config.iterations_per_keyframe = 30;
+  return config;
+}
+
+struct Quality {
+  double psnr = 0, depth_l1_cm = 0;
+};
+
+Quality render_quality(const Mapper& mapper, const Fixture& f, std::size_t k) {
+  const MapperKeyframe truth = f.keyframe(k);
+  RenderView view;
+  view.camera = f.camera;
+  view.T_camera_world = truth.T_world_camera.inverse();
+  RenderResult r;
+  std::string why;
+  auto rasterizer = make_cpu_rasterizer();
+  EXPECT_TRUE(rasterizer->forward(mapper.map(), view, RenderSettings{}, &r, &why)) << why;
+  cv::Mat rgb(f.camera.height, f.camera.width, CV_8UC3), median(f.camera.height, f.camera.width, CV_32FC1);
+  for (int v = 0; v < f.camera.height; ++v)
+    for (int u = 0; u < f.camera.width; ++u) {
+      for (int c = 0; c < 3; ++c)
+        rgb.at<cv::Vec3b>(v, u)[c] = cv::saturate_cast<uchar>(255.0f * r.colour.at(c, v, u) + 0.5f);
+      median.at<float>(v, u) = r.median_depth.at(0, v, u);
+    }
+  Quality q;
+  DepthL1Result depth;
+  EXPECT_TRUE(compute_psnr(rgb, truth.colour, ImageMetricsConfig{}, &q.psnr, &why)) << why;
+  EXPECT_TRUE(compute_depth_l1(median, truth.depth, cv::Mat(), &depth, &why)) << why;
+  q.depth_l1_cm = depth.l1_cm;
+  return q;
+}
+
+TEST(Mapper, BuildsAMapThatRendersHeldOutViews) {
+  Fixture f;
+  Mapper mapper(small_config(), make_cpu_rasterizer());
+  std::string why;
+  for (std::size_t k : {0u, 10u, 20u, 30u}) {
+    RefinementStats stats;
+    ASSERT_TRUE(mapper.add_keyframe(f.keyframe(k), &stats, &why)) << why;
+    EXPECT_EQ(stats.iterations, 30);
+    EXPECT_GT(stats.inserted, 0u);
+  }
+  ASSERT_TRUE(mapper.optimise(60, &why)) << why;
+  EXPECT_EQ(mapper.versions().latest()->size(), mapper.map().size());
+  // Frames between the keyframes were never trained on.
+  for (std::size_t k : {5u, 15u, 25u}) {
+    const Quality q = render_quality(mapper, f, k);
+    EXPECT_GT(q.psnr, 20.0) << "held-out frame " << k;
+    EXPECT_LT(q.depth_l1_cm, 5.0) << "held-out frame " << k;
+  }
+}
+
+TEST(Mapper, OptimisationLowersTheLoss) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.iterations_per_keyframe = 1;
+  Mapper mapper(config, make_cpu_rasterizer());
+  std::string why;
+  RefinementStats first;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(0), &first, &why)) << why;
+  const Quality before = render_quality(mapper, f, 0);
+  ASSERT_TRUE(mapper.optimise(80, &why)) << why;
+  const Quality after = render_quality(mapper, f, 0);
+  EXPECT_GT(after.psnr, before.psnr + 1.0);
+  EXPECT_GT(first.last_losses.rgb_l1, 0.0);
+  EXPECT_GT(first.last_losses.depth_l1, 0.0);
+  EXPECT_GT(first.last_losses.normal_expected, 0.0);
+  EXPECT_GT(first.last_losses.thin, 0.0);
+}
+
+TEST(Mapper, InsertsOnlyWhereTheMapDoesNotExplainTheKeyframe) {
+  Fixture f;
+  MapperConfig config = small_config();
+  // Without pruning: a pruned Gaussian leaves a hole that the next keyframe refills.
+  config.prune_percentile_mapping = config.prune_percentile_tracking = 0.0;
+  Mapper mapper(config, make_cpu_rasterizer());
+  std::string why;
+  RefinementStats a, b;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(12), &a, &why)) << why;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(12), &b, &why)) << why;
+  EXPECT_GT(a.inserted, 5000u);
+  EXPECT_LT(b.inserted, a.inserted / 10) << "the same view again is already explained";
+}
+
+TEST(Mapper, ImportancePruningRemovesAtMostThePercentileOfNewGaussians) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.prune_percentile_tracking = 0.1;
+  config.prune_percentile_mapping = 0.3;
+  Mapper mapper(config, make_cpu_rasterizer());
+  std::string why;
+  RefinementStats s;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(0), &s, &why)) << why;
+  EXPECT_TRUE(s.mapping_keyframe);  // the first keyframe
+  EXPECT_GT(s.pruned_importance, 0u);
+  EXPECT_LE(s.pruned_importance, static_cast<std::size_t>(0.3 * s.inserted) + 1);
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(2), &s, &why)) << why;
+  EXPECT_FALSE(s.mapping_keyframe);  // a few centimetres from the first
+  EXPECT_LE(s.pruned_importance, static_cast<std::size_t>(0.1 * s.inserted) + 1);
+}
+
+// Synthetic feature maps: each object instance gets its own 3-vector; the rendered features of
+// a trained map must approach them.
+TEST(Mapper, LearnsFeatureChannels) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.feature_dim = 3;
+  config.iterations_per_keyframe = 1;
+  Mapper mapper(config, make_cpu_rasterizer());
+  const SynthView view = render_view(f.room, f.camera, f.trajectory[0].T_world_camera);
+  MapperKeyframe kf = f.keyframe(0);
+  kf.feature_target = PlanarImage(f.camera.width, f.camera.height, 3);
+  for (int v = 0; v < f.camera.height; ++v)
+    for (int u = 0; u < f.camera.width; ++u) {
+      const int id = view.instance_label.at<std::uint16_t>(v, u);
+      for (int c = 0; c < 3; ++c) kf.feature_target.at(c, v, u) = std::sin(1.7f * id + 2.1f * c);
+    }
+  std::string why;
+  ASSERT_TRUE(mapper.add_keyframe(kf, nullptr, &why)) << why;
+  auto feature_error = [&] {
+    RenderView rv;
+    rv.camera = f.camera;
+    rv.T_camera_world = kf.T_world_camera.inverse();
+    RenderResult r;
+    EXPECT_TRUE(make_cpu_rasterizer()->forward(mapper.map(), rv, RenderSettings{}, &r, &why));
+    double loss = 0;
+    EXPECT_TRUE(l1_loss(r.features, kf.feature_target, nullptr, 1.0, &loss, nullptr, &why));
+    return loss;
+  };
+  const double before = feature_error();
+  ASSERT_TRUE(mapper.optimise(60, &why)) << why;
+  const double after = feature_error();
+  // Initialised from the target itself, so it starts close; training must make it closer still.
+  EXPECT_LT(after, before);
+  EXPECT_LT(after, 0.15);
+}
+
+TEST(Mapper, RejectsBadKeyframes) {
+  Fixture f;
+  Mapper mapper(small_config(), make_cpu_rasterizer());
+  std::string why;
+  MapperKeyframe kf = f.keyframe(0);
+  kf.depth = cv::Mat(10, 10, CV_32FC1, cv::Scalar(1.0f));
+  EXPECT_FALSE(mapper.add_keyframe(kf, nullptr, &why));
+  EXPECT_NE(why.find("depth"), std::string::npos);
+  kf = f.keyframe(0);
+  kf.camera.fx = 0;
+  EXPECT_FALSE(mapper.add_keyframe(kf, nullptr, &why));
+  kf = f.keyframe(0);
+  kf.T_world_camera.translation().x() = std::nan("");
+  EXPECT_FALSE(mapper.add_keyframe(kf, nullptr, &why));
+  EXPECT_NE(why.find("pose"), std::string::npos);
+  EXPECT_EQ(mapper.map().size(), 0u);
+}
+
+}  // namespace
+}  // namespace fslam::core
