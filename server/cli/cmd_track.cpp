@@ -29,6 +29,7 @@ struct TrackArgs {
   float voxel = -1.0f;     // < 0: the config default
   bool constant_velocity = false;
   float max_depth = -1.0f;  // < 0: the config default
+  bool no_depth_noise = false;
 };
 
 struct StageStats {
@@ -56,6 +57,7 @@ int run_track(const TrackArgs& args) {
   if (args.voxel >= 0.0f) config.preprocess.voxel_size = args.voxel;
   config.constant_velocity = args.constant_velocity;
   if (args.max_depth > 0.0f) config.preprocess.max_depth = args.max_depth;
+  if (args.no_depth_noise) config.preprocess.depth_noise.enabled = false;
   if (!config.is_valid(&why)) return fail("tracker config: " + why);
   // core has no hidden thread pools: the caller decides how many threads TBB may use.
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
@@ -150,6 +152,9 @@ void add_track_command(CLI::App& root, CommandList* commands) {
   app->add_flag("--constant-velocity", args->constant_velocity,
                 "Start each registration from the constant-velocity prediction instead of the "
                 "last pose (docs/tracking.md says why it is off by default)");
+  app->add_flag("--no-depth-noise", args->no_depth_noise,
+                "Give every point the unit-disc covariance instead of scaling it by the depth "
+                "sensor's noise at its depth (the scale-free GICP of earlier versions)");
   commands->push_back({app, [args] { return run_track(*args); }});
 }
 

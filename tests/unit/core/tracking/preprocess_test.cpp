@@ -96,13 +96,56 @@ TEST(Preprocess, TiltedPlaneCovariancesAreDiscsAlongThePlane) {
         std::max(worst_distance_m, std::abs(normal.dot(points.means[i].cast<double>()) - offset));
     worst_angle_deg =
         std::max(worst_angle_deg, angle_deg(covariance_normal(points.covariances[i]), n));
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> solver(points.covariances[i]);
+    // The unit disc, scaled by the depth noise at the point's depth.
+    const float scale = config.depth_noise.covariance_scale(points.means[i].z());
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> solver(points.covariances[i] / scale);
     EXPECT_NEAR(solver.eigenvalues()(0), config.covariance.plane_epsilon, 1e-5);
     EXPECT_NEAR(solver.eigenvalues()(1), 1.0f, 1e-5);
     EXPECT_NEAR(solver.eigenvalues()(2), 1.0f, 1e-5);
   }
   EXPECT_LT(worst_distance_m, 1e-3);  // points lie on the plane to a millimetre
   EXPECT_LT(worst_angle_deg, 1.0);
+}
+
+TEST(Preprocess, DepthNoiseModelIsNguyenAxialSigma) {
+  const DepthNoiseModel model;
+  EXPECT_TRUE(model.is_valid());
+  // Nguyen et al. (2012): 1.2 mm + 1.9 mm/m^2 (z - 0.4 m)^2.
+  EXPECT_NEAR(model.sigma(1.0f), 0.0012 + 0.0019 * 0.36, 1e-7);
+  EXPECT_NEAR(model.sigma(3.0f), 0.0012 + 0.0019 * 6.76, 1e-7);
+  EXPECT_FLOAT_EQ(model.covariance_scale(model.reference_depth), 1.0f);
+  float previous = 0.0f;  // the scale grows with depth beyond z0
+  for (float z = 0.5f; z < 6.0f; z += 0.25f) {
+    const float scale = model.covariance_scale(z);
+    EXPECT_GT(scale, previous) << z;
+    previous = scale;
+  }
+  DepthNoiseModel off;
+  off.enabled = false;
+  EXPECT_FLOAT_EQ(off.covariance_scale(3.0f), 1.0f);
+}
+
+// Two planes at 1 m and 3 m: the same unit-disc shape, sizes in the ratio of the squared noise.
+TEST(Preprocess, CovariancesAreScaledByTheDepthNoise) {
+  PreprocessConfig config = stride4_config();
+  for (const float depth : {1.0f, 3.0f}) {
+    const RgbdFrame frame = plane_frame(Eigen::Vector3d::UnitZ(), depth);
+    for (const bool enabled : {true, false}) {
+      config.depth_noise.enabled = enabled;
+      const GaussianPoints points = preprocess_or_fail(frame, config);
+      ASSERT_GT(points.size(), 0u);
+      const float expected = enabled ? config.depth_noise.covariance_scale(depth) : 1.0f;
+      for (std::size_t i = 0; i < points.size(); i += 97) {
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> solver(points.covariances[i]);
+        EXPECT_NEAR(solver.eigenvalues()(0), config.covariance.plane_epsilon * expected,
+                    1e-5 * expected);
+        EXPECT_NEAR(solver.eigenvalues()(2), expected, 1e-5 * expected);
+      }
+    }
+  }
+  const DepthNoiseModel model;
+  EXPECT_NEAR(model.covariance_scale(3.0f) / model.covariance_scale(1.0f),
+              std::pow((0.0012 + 0.0019 * 6.76) / (0.0012 + 0.0019 * 0.36), 2.0), 1e-3);
 }
 
 TEST(Preprocess, StrideGivesTheLatticeCount) {
@@ -437,6 +480,14 @@ TEST(Preprocess, ConfigValidationNamesTheField) {
   c = {};
   c.covariance.plane_epsilon = 0.0f;
   EXPECT_NE(message(c).find("covariance.plane_epsilon"), std::string::npos);
+  c = {};
+  c.depth_noise.a = 0.0f;
+  EXPECT_NE(message(c).find("depth_noise.a"), std::string::npos);
+  c = {};
+  c.depth_noise.reference_depth = -1.0f;
+  EXPECT_NE(message(c).find("depth_noise.reference_depth"), std::string::npos);
+  c.depth_noise.enabled = false;  // a disabled model is not checked
+  EXPECT_TRUE(c.is_valid());
 }
 
 // A redkitchen frame (Kinect v1, 7-Scenes) at stride 4.
@@ -466,7 +517,8 @@ TEST(Preprocess, RedkitchenFrame) {
   for (std::size_t i = 0; i < points.size(); ++i) {
     const Eigen::Vector3f& p = points.means[i];
     EXPECT_TRUE(p.z() > config.min_depth && p.z() < config.max_depth);
-    const Eigen::Matrix3f& c = points.covariances[i];
+    // The unit disc before the depth-noise scale.
+    const Eigen::Matrix3f c = points.covariances[i] / config.depth_noise.covariance_scale(p.z());
     if (!c.allFinite()) continue;
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> solver(c);
     const Eigen::Vector3f e = solver.eigenvalues();

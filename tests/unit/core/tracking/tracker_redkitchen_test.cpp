@@ -47,7 +47,7 @@ TEST(TrackerRedkitchen, Png50Frames) {
   const RunSummary run = track_dataset((test::data_dir() / "redkitchen_png50").string(), "");
   EXPECT_EQ(run.ate.pairs, 50u);
   EXPECT_EQ(run.lost, 0u);
-  EXPECT_LT(run.ate.rmse, 0.015);  // metres; measured 0.0097 (docs/tracking.md)
+  EXPECT_LT(run.ate.rmse, 0.015);  // metres; measured 0.0094 (0.0097 without depth weighting)
   RecordProperty("ate_rmse_m", std::to_string(run.ate.rmse));
 }
 
@@ -56,7 +56,19 @@ TEST(TrackerRedkitchen, First150Frames) {
   const RunSummary run = track_dataset((test::data_dir() / "redkitchen").string(), "0:150");
   EXPECT_EQ(run.ate.pairs, 150u);
   EXPECT_EQ(run.lost, 0u);
-  EXPECT_LT(run.ate.rmse, 0.025);  // metres; measured 0.0176 (docs/tracking.md)
+  EXPECT_LT(run.ate.rmse, 0.025);  // metres; measured 0.0152 (0.0176 without depth weighting)
+  RecordProperty("ate_rmse_m", std::to_string(run.ate.rmse));
+}
+
+// The whole 600-frame segment, where the scale-free covariances gave 4.56 cm: far samples on
+// the Kinect's coarse disparity steps pulled every pose back (Sim(3) scale 1.049). With the
+// covariances scaled by the depth noise it measures 2.93 cm (scale 1.022).
+TEST(TrackerRedkitchen, Frames0To599) {
+  FSLAM_REQUIRE_DATA("redkitchen");
+  const RunSummary run = track_dataset((test::data_dir() / "redkitchen").string(), "0:599");
+  EXPECT_EQ(run.ate.pairs, 599u);
+  EXPECT_EQ(run.lost, 0u);
+  EXPECT_LT(run.ate.rmse, 0.035);  // metres
   RecordProperty("ate_rmse_m", std::to_string(run.ate.rmse));
 }
 
