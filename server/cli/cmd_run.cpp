@@ -57,6 +57,7 @@ struct RunArgs {
   double training_scale = -1;
   int insert_stride = -1;
   std::vector<std::string> overrides;  // key=value for the mapper's numeric settings
+  bool gt_poses = false;
 };
 
 // `--set key=value` for the mapper's numeric settings, the same names as in MapperConfig.
@@ -223,6 +224,7 @@ int run_slam(const RunArgs& args) {
   core::Trajectory trajectory;
   std::vector<std::size_t> frame_index;  // dataset index of each trajectory entry
   std::vector<bool> is_keyframe;
+  std::vector<Eigen::Isometry3d> eval_poses;  // with --ground-truth-poses: where views are rendered
   std::vector<double> track_ms;
   std::size_t lost = 0, skipped = 0;
   Progress progress("slam", n);
@@ -253,7 +255,13 @@ int run_slam(const RunArgs& args) {
     if (i == 0 && frame->T_world_camera_gt) pipeline.set_initial_pose(*frame->T_world_camera_gt);
     core::TrackingResult result;
     const Clock::time_point t0 = Clock::now();
-    if (!pipeline.process_frame(*frame, &result, &why)) {
+    if (args.gt_poses && !frame->T_world_camera_gt) {
+      pipeline.finish();
+      mapping.join();
+      return fail("--ground-truth-poses: frame " + std::to_string(frame->id) + " has no ground truth");
+    }
+    const Eigen::Isometry3d* mapping_pose = args.gt_poses ? &*frame->T_world_camera_gt : nullptr;
+    if (!pipeline.process_frame(*frame, &result, &why, mapping_pose)) {
       pipeline.finish();
       mapping.join();
       return fail(why);
@@ -265,6 +273,7 @@ int run_slam(const RunArgs& args) {
                    result.message.c_str());
     }
     trajectory.push_back({frame->timestamp, result.T_world_camera});
+    if (args.gt_poses) eval_poses.push_back(*frame->T_world_camera_gt);
     frame_index.push_back(i);
     is_keyframe.push_back(result.keyframe);
     progress.update(i + 1);
@@ -293,6 +302,7 @@ int run_slam(const RunArgs& args) {
   nlohmann::json metrics;
   metrics["dataset"] = {{"path", dataset->root()}, {"kind", dataset->kind()}, {"frames", n}};
   metrics["mode"] = config.realtime ? "realtime" : "fast";
+  metrics["mapping_poses"] = args.gt_poses ? "ground truth" : "tracked";
   if (config.realtime) metrics["realtime_fps"] = args.realtime_fps;
   metrics["threads"] = args.threads;
   if (dataset->has_ground_truth()) {
@@ -336,7 +346,7 @@ int run_slam(const RunArgs& args) {
     if (!dataset->load(frame_index[k], &frame, &why)) return fail(why);
     core::RenderView view;
     view.camera = frame.camera;
-    view.T_camera_world = trajectory[k].T_world_camera.inverse();
+    view.T_camera_world = (args.gt_poses ? eval_poses[k] : trajectory[k].T_world_camera).inverse();
     core::RenderResult rendered;
     if (!rasterizer->forward(map, view, settings, &rendered, &why)) return fail(why);
     cv::Mat rgb = to_rgb8(rendered.colour);
@@ -443,9 +453,12 @@ void add_run_command(CLI::App& root, CommandList* commands) {
   app->add_option("--prune-mapping", args->prune_mapping,
                   "Importance-pruning percentile on mapping keyframes, 0..1 (default 0.30)");
   app->add_option("--training-scale", args->training_scale,
-                  "Training renders at this fraction of the input size (default 0.5)");
+                  "Training renders at this fraction of the input size (default 0.25)");
   app->add_option("--insert-stride", args->insert_stride,
-                  "Pixel stride of new Gaussians on the training image (default 2)");
+                  "Pixel stride of new Gaussians on the training image (default 1)");
+  app->add_flag("--ground-truth-poses", args->gt_poses,
+                "Map and render at the ground-truth poses (tracking still runs and is scored): "
+                "map quality without tracking drift");
   app->add_option("--set", args->overrides,
                   "Override a numeric mapper setting, key=value (e.g. loss.erank_lambda_max=0)");
   commands->push_back({app, [args] { return run_slam(*args); }});

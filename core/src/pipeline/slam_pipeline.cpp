@@ -24,14 +24,14 @@ void SlamPipeline::set_initial_pose(const Eigen::Isometry3d& T_world_camera) {
 }
 
 bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
-                                 std::string* why) {
+                                 std::string* why, const Eigen::Isometry3d* mapping_pose) {
   // Preprocess, register and decide on a keyframe (Tracker::track, eq. feat_gicp, keyframe_crit).
   if (!tracker_.track(frame, result, why)) return false;
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
   if (result->keyframe) {
     MapperKeyframe kf;
     kf.frame_id = frame.id;
-    kf.T_world_camera = result->T_world_camera;
+    kf.T_world_camera = mapping_pose != nullptr ? *mapping_pose : result->T_world_camera;
     kf.camera = frame.camera;
     kf.colour = frame.colour;
     kf.depth = frame.depth;

@@ -45,7 +45,10 @@ class SlamPipeline {
 
   // Tracker thread: preprocess -> feature-guided GICP (eq. feat_gicp) -> keyframe decision
   // (eq. keyframe_crit) -> hand the keyframe to mapping. Never blocks on the mapper.
-  bool process_frame(const RgbdFrame& frame, TrackingResult* result, std::string* why);
+  // mapping_pose (optional): map the frame at this pose instead of the tracked one (mapping-only
+  // evaluation with ground-truth poses, which separates map quality from tracking drift).
+  bool process_frame(const RgbdFrame& frame, TrackingResult* result, std::string* why,
+                     const Eigen::Isometry3d* mapping_pose = nullptr);
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera);
 
   // Mapping thread: runs until finish() was called and every queued keyframe is mapped.
