@@ -103,12 +103,15 @@ run_demo() {
   "$fslam" version
   "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
   "$fslam" info --dataset "$OUT/sequence"
-  "$fslam" track --dataset "$OUT/sequence" --out "$OUT/trajectory.txt"
-  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/trajectory.txt" \
+  "$fslam" run --dataset "$OUT/sequence" --out "$OUT/slam"
+  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/slam/trajectory.txt" \
     --json "$OUT/trajectory_eval.json" --plot "$OUT/trajectory.png"
   log "outputs"
   echo "sequence:        $OUT/sequence (TUM layout: rgb/, depth/, labels/, groundtruth.txt)"
-  echo "trajectory:      $OUT/trajectory.txt (tracked, TUM format)"
+  echo "trajectory:      $OUT/slam/trajectory.txt (tracked, TUM format)"
+  echo "map:             $OUT/slam/map.ply (3DGS PLY, opens in common splat viewers)"
+  echo "renders:         $OUT/slam/renders/ (held-out frames: input vs rendered colour, depth, normals)"
+  echo "metrics:         $OUT/slam/metrics.json (ATE, held-out PSNR/SSIM/depth L1, timings, memory)"
   echo "trajectory plot: $OUT/trajectory.png (tracked vs ground truth)"
   echo "evaluation:      $OUT/trajectory_eval.json (ATE, RPE)"
 }

@@ -12,6 +12,7 @@
 #include <fstream>
 #include <future>
 #include <memory>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -205,6 +206,8 @@ int run_slam(const RunArgs& args) {
   // Mapping thread.
   std::vector<double> keyframe_ms;
   std::atomic<std::size_t> mapped{0};
+  std::mutex progress_mutex;
+  std::unique_ptr<Progress> mapping_progress;  // once tracking is done: the keyframes left
   std::string mapping_error;
   const Clock::time_point start = Clock::now();
   std::thread mapping([&] {
@@ -213,7 +216,9 @@ int run_slam(const RunArgs& args) {
             [&](const core::KeyframeReport& r) {
               keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms +
                                     r.refinement.prune_ms);
-              mapped.fetch_add(1);
+              const std::size_t done = mapped.fetch_add(1) + 1;
+              std::lock_guard<std::mutex> lock(progress_mutex);
+              if (mapping_progress) mapping_progress->update(done);
             },
             &mwhy)) {
       mapping_error = mwhy.empty() ? "mapping failed" : mwhy;
@@ -283,12 +288,26 @@ int run_slam(const RunArgs& args) {
   pipeline.finish();
   std::fprintf(stderr, "tracking done in %.1f s; mapping %zu queued keyframe(s)\n",
                ms_between(start, tracking_done) / 1000.0, pipeline.queued_keyframes());
+  {
+    std::lock_guard<std::mutex> lock(progress_mutex);
+    // Keyframes still to map: those queued plus the one in progress (counted as left).
+    const std::size_t total = static_cast<std::size_t>(
+        std::count(is_keyframe.begin(), is_keyframe.end(), true));
+    mapping_progress = std::make_unique<Progress>("map", std::max<std::size_t>(total, 1));
+    mapping_progress->update(mapped.load());
+  }
   mapping.join();
+  mapping_progress->finish();
   if (!mapping_error.empty()) return fail(mapping_error);
   const Clock::time_point mapping_done = Clock::now();
   if (args.refine > 0) {
-    std::fprintf(stderr, "post-trajectory refinement: %d steps\n", args.refine);
-    if (!pipeline.refine(args.refine, &why)) return fail(why);
+    Progress refine_progress("refine", static_cast<std::size_t>(args.refine));
+    if (!pipeline.refine(args.refine, &why, [&](int done, int) {
+          refine_progress.update(static_cast<std::size_t>(done));
+        })) {
+      return fail(why);
+    }
+    refine_progress.finish();
   }
   const Clock::time_point refine_done = Clock::now();
   const double slam_s = ms_between(start, mapping_done) / 1000.0;

@@ -361,11 +361,12 @@ bool Mapper::optimise(int iterations, std::string* why) {
   return true;
 }
 
-bool Mapper::refine(int steps, std::string* why) {
+bool Mapper::refine(int steps, std::string* why, const std::function<void(int, int)>& progress) {
   if (keyframes_.empty() || map_.empty()) return true;
   recompute_filter_3d(0);
   for (int it = 0; it < steps; ++it) {
     if (!step(keyframes_[sample_keyframe(true)], nullptr, why)) return false;
+    if (progress && ((it + 1) % 10 == 0 || it + 1 == steps)) progress(it + 1, steps);
   }
   publish();
   return true;

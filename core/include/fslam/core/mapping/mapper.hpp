@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <random>
@@ -129,7 +130,9 @@ class Mapper {
   bool optimise(int iterations, std::string* why);
   // Post-trajectory refinement: recompute the 3D filter over all keyframes, then `steps` steps
   // with keyframes drawn uniformly; no insertion or importance pruning.
-  bool refine(int steps, std::string* why);
+  // progress (optional) is called every few steps with (steps done, steps).
+  bool refine(int steps, std::string* why,
+              const std::function<void(int, int)>& progress = nullptr);
   // Replaces the map (resume from a saved map); keyframes are kept.
   bool set_map(const GaussianMap& map, std::string* why);
 

@@ -60,7 +60,10 @@ class SlamPipeline {
   void finish();
 
   // After run_mapping returned: post-trajectory refinement (paper), `steps` steps.
-  bool refine(int steps, std::string* why) { return mapper_.refine(steps, why); }
+  bool refine(int steps, std::string* why,
+              const std::function<void(int, int)>& progress = nullptr) {
+    return mapper_.refine(steps, why, progress);
+  }
 
   Tracker& tracker() { return tracker_; }
   const Mapper& mapper() const { return mapper_; }
