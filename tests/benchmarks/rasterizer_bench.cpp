@@ -99,30 +99,8 @@ int main(int argc, char** argv) {
       if (reference && v == 0) {
         // The reference is single-threaded by construction; compare it with our forward pass
         // on one thread for the same view.
-        fslam::core::math::SplatCamera<float> cam{};
-        const Eigen::Matrix3d R = view.T_camera_world.rotation();
-        for (int a = 0; a < 3; ++a) {
-          for (int b = 0; b < 3; ++b) cam.R[3 * a + b] = static_cast<float>(R(a, b));
-          cam.t[a] = static_cast<float>(view.T_camera_world.translation()[a]);
-        }
-        cam.fx = static_cast<float>(camera.fx);
-        cam.fy = static_cast<float>(camera.fy);
-        cam.cx = static_cast<float>(camera.cx);
-        cam.cy = static_cast<float>(camera.cy);
-        cam.near_plane = settings.near_plane;
-        cam.width = camera.width;
-        cam.height = camera.height;
-        fslam::core::render_impl::SplatScene<float> scene;
-        scene.count = map.size();
-        scene.means = map.means.data();
-        scene.rotations = map.rotations.data();
-        scene.log_scales = map.log_scales.data();
-        scene.opacity_logits = map.opacity_logits.data();
-        scene.sh = map.sh.data();
-        scene.features = map.feature_dim > 0 ? map.features.data() : nullptr;
-        scene.filter_3d = map.filter_3d.data();
-        scene.sh_degree = map.sh_degree;
-        scene.feature_dim = map.feature_dim;
+        const auto cam = fslam::core::render_impl::splat_camera(view, settings.near_plane);
+        const auto scene = fslam::core::render_impl::splat_scene(map);
         fslam::core::PlanarImage c(camera.width, camera.height, 3), d(camera.width, camera.height, 1),
             m(camera.width, camera.height, 1), a(camera.width, camera.height, 1),
             f(camera.width, camera.height, std::max(1, map.feature_dim));

@@ -6,20 +6,6 @@
 namespace fslam::core {
 namespace {
 
-template <typename T>
-void keep_rows(std::vector<T>* values, std::size_t row, const std::vector<std::uint8_t>& keep) {
-  if (values->empty() || row == 0) return;
-  std::size_t out = 0;
-  for (std::size_t i = 0; i < keep.size(); ++i) {
-    if (!keep[i]) continue;
-    if (out != i) {
-      for (std::size_t k = 0; k < row; ++k) (*values)[out * row + k] = (*values)[i * row + k];
-    }
-    ++out;
-  }
-  values->resize(out * row);
-}
-
 bool all_finite(const std::vector<float>& values) {
   for (float v : values) {
     if (!std::isfinite(v)) return false;

@@ -7,23 +7,6 @@
 #include <utility>
 
 namespace fslam::core {
-namespace {
-
-// Keeps rows of `row` values whose keep[i] is non-zero, in order.
-void keep_rows(std::vector<float>* values, std::size_t row, const std::vector<std::uint8_t>& keep) {
-  std::size_t out = 0;
-  for (std::size_t i = 0; i < keep.size(); ++i) {
-    if (!keep[i]) continue;
-    if (out != i) {
-      for (std::size_t k = 0; k < row; ++k) (*values)[out * row + k] = (*values)[i * row + k];
-    }
-    ++out;
-  }
-  values->resize(out * row);
-}
-
-}  // namespace
-
 AdamOptimizer::AdamOptimizer(std::size_t n, AdamSettings settings) : settings_(settings), n_(n) {}
 
 int AdamOptimizer::add_group(std::string name, std::size_t row, float lr) {

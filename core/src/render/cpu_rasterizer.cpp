@@ -29,39 +29,13 @@ void GaussianGradients::reset(const GaussianMap& map) {
 
 namespace {
 
-render_impl::SplatScene<float> scene_of(const GaussianMap& map) {
-  render_impl::SplatScene<float> s;
-  s.count = map.size();
-  s.means = map.means.data();
-  s.rotations = map.rotations.data();
-  s.log_scales = map.log_scales.data();
-  s.opacity_logits = map.opacity_logits.data();
-  s.sh = map.sh.data();
-  s.features = map.feature_dim > 0 ? map.features.data() : nullptr;
-  s.filter_3d = map.filter_3d.empty() ? nullptr : map.filter_3d.data();
-  s.sh_degree = map.sh_degree;
-  s.feature_dim = map.feature_dim;
-  return s;
-}
-
 bool camera_of(const RenderView& view, const RenderSettings& settings,
                math::SplatCamera<float>* cam, std::string* why) {
   std::string reason;
   if (!view.camera.is_valid(&reason)) return fail(why, "render view: " + reason);
   if (!view.T_camera_world.matrix().allFinite()) return fail(why, "render view: non-finite pose");
   if (!(settings.near_plane > 0.0f)) return fail(why, "render settings: near plane must be > 0");
-  const Eigen::Matrix3d R = view.T_camera_world.rotation();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) cam->R[3 * r + c] = static_cast<float>(R(r, c));
-    cam->t[r] = static_cast<float>(view.T_camera_world.translation()[r]);
-  }
-  cam->fx = static_cast<float>(view.camera.fx);
-  cam->fy = static_cast<float>(view.camera.fy);
-  cam->cx = static_cast<float>(view.camera.cx);
-  cam->cy = static_cast<float>(view.camera.cy);
-  cam->near_plane = settings.near_plane;
-  cam->width = view.camera.width;
-  cam->height = view.camera.height;
+  *cam = render_impl::splat_camera(view, settings.near_plane);
   return true;
 }
 
@@ -89,7 +63,7 @@ class CpuRasterizer final : public Rasterizer {
     out.median_depth = result->median_depth.data.data();
     out.alpha = result->alpha.data.data();
     out.features = D > 0 ? result->features.data.data() : nullptr;
-    render_impl::rasterize_forward(scene_of(map), cam, settings.background.data(), D > 0,
+    render_impl::rasterize_forward(render_impl::splat_scene(map), cam, settings.background.data(), D > 0,
                                    &state->raster, out);
     result->visible.resize(map.size());
     for (std::size_t i = 0; i < map.size(); ++i) {
@@ -154,7 +128,7 @@ class CpuRasterizer final : public Rasterizer {
     g.importance_rgb = grads->importance_rgb.data();
     g.importance_feature = grads->importance_feature.data();
     g.mean2d_abs = grads->mean2d_abs.data();
-    render_impl::rasterize_backward(scene_of(map), cam, settings.background.data(), D > 0, st, out,
+    render_impl::rasterize_backward(render_impl::splat_scene(map), cam, settings.background.data(), D > 0, st, out,
                                     gout, g);
     return true;
   }

@@ -49,6 +49,22 @@ struct GaussianMap {
   bool is_consistent(std::string* why = nullptr) const;
 };
 
+// Keeps the rows of `row` values whose keep[i] is non-zero, in order (values: [N, row]; an
+// empty array stays empty). Shared by the map and the state that follows its rows.
+template <typename T>
+void keep_rows(std::vector<T>* values, std::size_t row, const std::vector<std::uint8_t>& keep) {
+  if (values->empty() || row == 0) return;
+  std::size_t out = 0;
+  for (std::size_t i = 0; i < keep.size(); ++i) {
+    if (!keep[i]) continue;
+    if (out != i) {
+      for (std::size_t k = 0; k < row; ++k) (*values)[out * row + k] = (*values)[i * row + k];
+    }
+    ++out;
+  }
+  values->resize(out * row);
+}
+
 // 0.5 + C0 * dc is the colour of a degree-0 Gaussian; the inverse for initialisation.
 constexpr float kShC0 = 0.28209479177387814f;
 inline float rgb_to_sh_dc(float rgb) { return (rgb - 0.5f) / kShC0; }

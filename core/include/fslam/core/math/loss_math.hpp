@@ -65,10 +65,11 @@ FSLAM_HD void normal_differences(const Intrinsics& k, int u, int v, T z_left, T 
 // towards the camera, see normal_differences). Pixel (u, v) of a row-major depth image
 // [height, width]: the normal is defined when the pixel and its four neighbours are valid depths
 // and the cross product is non-zero; otherwise n = 0 and false.
+// The differences and unnormalised normal c = dy x dx at pixel (u, v), and |c|; false where the
+// pixel or a neighbour has no depth, on the border, or where the differences are parallel.
 template <typename T>
-FSLAM_HD bool normal_at_pixel(const T* depth, int width, int height, const Intrinsics& k, int u,
-                              int v, T* n) {
-  n[0] = n[1] = n[2] = T(0);
+FSLAM_HD bool normal_stencil(const T* depth, int width, int height, const Intrinsics& k, int u,
+                             int v, T* dx, T* dy, T* c, T* len) {
   if (u < 1 || v < 1 || u >= width - 1 || v >= height - 1) return false;
   const int i = v * width + u;
   const T zc = depth[i], zl = depth[i - 1], zr = depth[i + 1];
@@ -76,10 +77,17 @@ FSLAM_HD bool normal_at_pixel(const T* depth, int width, int height, const Intri
   if (!positive_finite(zc) || !positive_finite(zl) || !positive_finite(zr) ||
       !positive_finite(zu) || !positive_finite(zd))
     return false;
-  T dx[3], dy[3], c[3];
   normal_differences(k, u, v, zl, zr, zu, zd, dx, dy, c);
-  const T len = sqrt(dot3(c, c));
-  if (!(len > T(0))) return false;
+  *len = sqrt(dot3(c, c));
+  return *len > T(0);
+}
+
+template <typename T>
+FSLAM_HD bool normal_at_pixel(const T* depth, int width, int height, const Intrinsics& k, int u,
+                              int v, T* n) {
+  n[0] = n[1] = n[2] = T(0);
+  T dx[3], dy[3], c[3], len;
+  if (!normal_stencil(depth, width, height, k, u, v, dx, dy, c, &len)) return false;
   for (int j = 0; j < 3; ++j) n[j] = c[j] / len;
   return true;
 }
@@ -94,17 +102,8 @@ template <typename T>
 FSLAM_HD bool normal_at_pixel_backward(const T* depth, int width, int height, const Intrinsics& k,
                                        int u, int v, const T* g, T* grad_z) {
   grad_z[0] = grad_z[1] = grad_z[2] = grad_z[3] = T(0);
-  if (u < 1 || v < 1 || u >= width - 1 || v >= height - 1) return false;
-  const int i = v * width + u;
-  const T zc = depth[i], zl = depth[i - 1], zr = depth[i + 1];
-  const T zu = depth[i - width], zd = depth[i + width];
-  if (!positive_finite(zc) || !positive_finite(zl) || !positive_finite(zr) ||
-      !positive_finite(zu) || !positive_finite(zd))
-    return false;
-  T dx[3], dy[3], c[3];
-  normal_differences(k, u, v, zl, zr, zu, zd, dx, dy, c);
-  const T len = sqrt(dot3(c, c));
-  if (!(len > T(0))) return false;
+  T dx[3], dy[3], c[3], len;
+  if (!normal_stencil(depth, width, height, k, u, v, dx, dy, c, &len)) return false;
   T n[3], gc[3];
   for (int j = 0; j < 3; ++j) n[j] = c[j] / len;
   const T ng = dot3(n, g);

@@ -15,6 +15,7 @@
 #include <tbb/parallel_for.h>
 
 #include "fslam/core/math/splat_math.hpp"
+#include "fslam/core/render/rasterizer.hpp"
 
 namespace fslam::core::render_impl {
 
@@ -88,9 +89,37 @@ struct RasterState {
   std::uint64_t blend_steps = 0;      // splat-pixel pairs composited (alpha >= 1/255)
 };
 
-template <typename T>
-T scene_sh(const SplatScene<T>& s, std::size_t i, int k) {
-  return s.sh[i * s.sh_stride() + k];
+// The float views of a GaussianMap and a RenderView that the CPU backend and the benchmark use.
+inline SplatScene<float> splat_scene(const GaussianMap& map) {
+  SplatScene<float> s;
+  s.count = map.size();
+  s.means = map.means.data();
+  s.rotations = map.rotations.data();
+  s.log_scales = map.log_scales.data();
+  s.opacity_logits = map.opacity_logits.data();
+  s.sh = map.sh.data();
+  s.features = map.feature_dim > 0 ? map.features.data() : nullptr;
+  s.filter_3d = map.filter_3d.empty() ? nullptr : map.filter_3d.data();
+  s.sh_degree = map.sh_degree;
+  s.feature_dim = map.feature_dim;
+  return s;
+}
+
+inline math::SplatCamera<float> splat_camera(const RenderView& view, float near_plane) {
+  math::SplatCamera<float> cam{};
+  const Eigen::Matrix3d R = view.T_camera_world.rotation();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) cam.R[3 * r + c] = static_cast<float>(R(r, c));
+    cam.t[r] = static_cast<float>(view.T_camera_world.translation()[r]);
+  }
+  cam.fx = static_cast<float>(view.camera.fx);
+  cam.fy = static_cast<float>(view.camera.fy);
+  cam.cx = static_cast<float>(view.camera.cx);
+  cam.cy = static_cast<float>(view.camera.cy);
+  cam.near_plane = near_plane;
+  cam.width = view.camera.width;
+  cam.height = view.camera.height;
+  return cam;
 }
 
 // Projects every Gaussian and bins them into depth-sorted tile lists.
