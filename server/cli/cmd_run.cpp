@@ -84,7 +84,8 @@ bool apply_override(const std::string& item, core::MapperConfig* c, std::string*
       {"new_alpha", &c->new_alpha}, {"new_depth_margin", &c->new_depth_margin},
       {"initial_opacity", &c->initial_opacity}, {"initial_scale_factor", &c->initial_scale_factor},
       {"initial_thickness", &c->initial_thickness}, {"max_scale", &c->max_scale},
-      {"min_opacity", &c->min_opacity}, {"lr.means", &c->learning_rates.means},
+      {"min_opacity", &c->min_opacity}, {"filter_3d_factor", &c->filter_3d_factor},
+      {"lr.means", &c->learning_rates.means},
       {"lr.sh_dc", &c->learning_rates.sh_dc}, {"lr.opacity", &c->learning_rates.opacity},
       {"lr.log_scales", &c->learning_rates.log_scales}, {"lr.rotations", &c->learning_rates.rotations}};
   for (const auto& [name, field] : doubles)

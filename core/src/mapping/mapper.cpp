@@ -154,8 +154,11 @@ std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf) {
         feature = f.data();
       }
       const float mean[3] = {p_world.x(), p_world.y(), p_world.z()};
-      // Mip-Splatting 3D filter from this keyframe's sampling rate (refined by refine()).
-      const float filter = config_.filter_3d_factor * (z / fx) * (z / fx);
+      // Mip-Splatting 3D filter from the sensor's sampling rate at this depth (refined by
+      // refine()): the input image's focal length, not the reduced training one, so that the
+      // filter does not blur renders at the input resolution.
+      const float fx_input = fx / static_cast<float>(config_.training_scale);
+      const float filter = config_.filter_3d_factor * (z / fx_input) * (z / fx_input);
       map_.push_back(mean, q, log_scale, logit(config_.initial_opacity), sh.data(), feature, filter);
     }
   }
@@ -289,7 +292,7 @@ std::size_t Mapper::prune(double percentile, std::size_t first_candidate) {
 }
 
 // Mip-Splatting's 3D filter from the highest sampling rate f / z over the keyframes whose view
-// contains the Gaussian's centre.
+// contains the Gaussian's centre, f of the input images.
 void Mapper::recompute_filter_3d(std::size_t first) {
   for (std::size_t i = first; i < map_.size(); ++i) {
     const Eigen::Vector3d p(map_.means[3 * i], map_.means[3 * i + 1], map_.means[3 * i + 2]);
@@ -299,7 +302,7 @@ void Mapper::recompute_filter_3d(std::size_t first) {
       if (c.z() <= config_.render.near_plane) continue;
       const Eigen::Vector2d px = kf.view.camera.project(c);
       if (!kf.view.camera.contains(px)) continue;
-      best_rate = std::max(best_rate, kf.view.camera.fx / c.z());
+      best_rate = std::max(best_rate, kf.view.camera.fx / config_.training_scale / c.z());
     }
     if (best_rate > 0.0) {
       map_.filter_3d[i] = static_cast<float>(config_.filter_3d_factor / (best_rate * best_rate));
