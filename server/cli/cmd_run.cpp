@@ -22,6 +22,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 #include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 
 #include "commands.hpp"
 #include "dataset_args.hpp"
@@ -211,19 +212,24 @@ int run_slam(const RunArgs& args) {
   std::unique_ptr<Progress> mapping_progress;  // once tracking is done: the keyframes left
   std::string mapping_error;
   const Clock::time_point start = Clock::now();
+  // In real time the tracker must keep a core to itself (a live sensor does not wait), so
+  // mapping's parallel loops get one thread fewer; as fast as it can, they may use all.
+  const int mapping_threads = config.realtime ? std::max(1, args.threads - 1) : args.threads;
   std::thread mapping([&] {
     std::string mwhy;
-    if (!pipeline.run_mapping(
-            [&](const core::KeyframeReport& r) {
-              keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms +
-                                    r.refinement.prune_ms);
-              const std::size_t done = mapped.fetch_add(1) + 1;
-              std::lock_guard<std::mutex> lock(progress_mutex);
-              if (mapping_progress) mapping_progress->update(done);
-            },
-            &mwhy)) {
-      mapping_error = mwhy.empty() ? "mapping failed" : mwhy;
-    }
+    tbb::task_arena arena(mapping_threads);
+    const bool ok = arena.execute([&] {
+      return pipeline.run_mapping(
+          [&](const core::KeyframeReport& r) {
+            keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms +
+                                  r.refinement.prune_ms);
+            const std::size_t done = mapped.fetch_add(1) + 1;
+            std::lock_guard<std::mutex> lock(progress_mutex);
+            if (mapping_progress) mapping_progress->update(done);
+          },
+          &mwhy);
+    });
+    if (!ok) mapping_error = mwhy.empty() ? "mapping failed" : mwhy;
   });
 
   // Tracking on this thread, frames decoded one ahead on another.
