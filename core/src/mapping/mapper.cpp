@@ -166,6 +166,8 @@ std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf) {
   adam_.grow(added);
   importance_.resize(map_.size(), 0.0f);
   seen_.resize(map_.size(), 0);
+  new_in_round_.assign(map_.size(), 0);
+  std::fill(new_in_round_.begin() + static_cast<std::ptrdiff_t>(before), new_in_round_.end(), 1);
   return added;
 }
 
@@ -256,21 +258,24 @@ bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* 
   return true;
 }
 
-std::size_t Mapper::prune(double percentile, std::size_t first_candidate) {
+std::size_t Mapper::prune(double percentile) {
   const std::size_t n = map_.size();
   std::vector<std::uint8_t> keep(n, 1);
   std::size_t pruned_importance = 0;
   // Eq. pruning_set over the candidates this round saw (the rest have no importance evidence).
   std::vector<float> scores;
-  for (std::size_t i = first_candidate; i < n; ++i) {
-    if (seen_[i]) scores.push_back(importance_[i]);
+  auto candidate = [&](std::size_t i) {
+    return seen_[i] && (!config_.prune_new_only || new_in_round_[i]);
+  };
+  for (std::size_t i = 0; i < n; ++i) {
+    if (candidate(i)) scores.push_back(importance_[i]);
   }
   if (percentile > 0.0 && scores.size() > 10) {
     const std::size_t k = static_cast<std::size_t>(percentile * static_cast<double>(scores.size()));
     std::nth_element(scores.begin(), scores.begin() + k, scores.end());
     const float threshold = scores[k];
-    for (std::size_t i = first_candidate; i < n; ++i) {
-      if (seen_[i] && importance_[i] < threshold) {
+    for (std::size_t i = 0; i < n; ++i) {
+      if (candidate(i) && importance_[i] < threshold) {
         keep[i] = 0;
         ++pruned_importance;
       }
@@ -286,8 +291,8 @@ std::size_t Mapper::prune(double percentile, std::size_t first_candidate) {
   }
   map_.keep_only(keep);
   adam_.keep_only(keep);
-  importance_.assign(map_.size(), 0.0f);
-  seen_.assign(map_.size(), 0);
+  reset_round();
+  new_in_round_.assign(map_.size(), 0);
   return pruned_importance;
 }
 
@@ -308,6 +313,11 @@ void Mapper::recompute_filter_3d(std::size_t first) {
       map_.filter_3d[i] = static_cast<float>(config_.filter_3d_factor / (best_rate * best_rate));
     }
   }
+}
+
+void Mapper::reset_round() {
+  importance_.assign(map_.size(), 0.0f);
+  seen_.assign(map_.size(), 0);
 }
 
 void Mapper::publish() { versions_.publish(std::make_shared<const GaussianMap>(map_)); }
@@ -334,8 +344,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   if (s.mapping_keyframe) last_mapping_keyframe_ = T;
 
   t0 = std::chrono::steady_clock::now();
-  importance_.assign(map_.size(), 0.0f);
-  seen_.assign(map_.size(), 0);
+  reset_round();
   for (int it = 0; it < config_.iterations_per_keyframe && !map_.empty(); ++it) {
     if (!step(keyframes_[sample_keyframe(false)], &s.last_losses, why)) return false;
     ++s.iterations;
@@ -344,10 +353,8 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   t0 = std::chrono::steady_clock::now();
   const std::size_t before = map_.size();
   if (s.iterations > 0) {
-    const std::size_t first = config_.prune_new_only ? map_.size() - s.inserted : 0;
     s.pruned_importance = prune(s.mapping_keyframe ? config_.prune_percentile_mapping
-                                                   : config_.prune_percentile_tracking,
-                                first);
+                                                   : config_.prune_percentile_tracking);
   }
   s.pruned_standard = before - map_.size() - s.pruned_importance;
   s.prune_ms = ms_since(t0);
@@ -387,8 +394,8 @@ bool Mapper::set_map(const GaussianMap& map, std::string* why) {
   map_ = map;
   if (map_.filter_3d.size() != map_.size()) map_.filter_3d.assign(map_.size(), 0.0f);
   adam_ = make_gaussian_adam(map_, config_.learning_rates);
-  importance_.assign(map_.size(), 0.0f);
-  seen_.assign(map_.size(), 0);
+  reset_round();
+  new_in_round_.assign(map_.size(), 0);
   publish();
   return true;
 }

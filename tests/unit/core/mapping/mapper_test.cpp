@@ -1,8 +1,10 @@
 // The online mapper on the synthetic room: Gaussians from keyframes, training on the paper's
 // total loss, held-out quality, insertion only where the map is unexplained, feature channels,
 // pruning bounds and bad input.
+#include <atomic>
 #include <cmath>
 #include <string>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -192,6 +194,50 @@ TEST(Mapper, RejectsBadKeyframes) {
   EXPECT_FALSE(mapper.add_keyframe(kf, nullptr, &why));
   EXPECT_NE(why.find("pose"), std::string::npos);
   EXPECT_EQ(mapper.map().size(), 0u);
+}
+
+}  // namespace
+}  // namespace fslam::core
+
+namespace fslam::core {
+namespace {
+
+// Readers take whole versions while the writer publishes: every version they hold stays
+// internally consistent, and version numbers only grow.
+TEST(MapVersions, ReadersSeeWholeVersionsWhileTheWriterPublishes) {
+  MapVersions versions;
+  std::atomic<bool> stop{false};
+  std::atomic<int> bad{0}, reads{0};
+  auto reader = [&] {
+    std::uint64_t last = 0;
+    while (!stop.load()) {
+      const std::uint64_t number = versions.version_number();
+      const MapVersions::Version map = versions.latest();
+      if (number < last) ++bad;
+      last = number;
+      std::string why;
+      if (!map->is_consistent(&why)) ++bad;
+      for (float m : map->means)
+        if (m != static_cast<float>(map->size())) ++bad;  // each version is written whole
+      ++reads;
+    }
+  };
+  std::thread a(reader), b(reader);
+  for (int n = 1; n <= 200; ++n) {
+    GaussianMap map;
+    map.feature_dim = 2;
+    const float v = static_cast<float>(n);
+    const float mean[3] = {v, v, v}, rot[4] = {1, 0, 0, 0}, ls[3] = {0, 0, 0};
+    for (int i = 0; i < n; ++i) map.push_back(mean, rot, ls, 0.0f, nullptr, nullptr);
+    versions.publish(std::make_shared<const GaussianMap>(std::move(map)));
+  }
+  stop = true;
+  a.join();
+  b.join();
+  EXPECT_EQ(bad.load(), 0);
+  EXPECT_GT(reads.load(), 0);
+  EXPECT_EQ(versions.version_number(), 200u);
+  EXPECT_EQ(versions.latest()->size(), 200u);
 }
 
 }  // namespace

@@ -72,5 +72,16 @@ TEST(TrackerRedkitchen, Frames0To599) {
   RecordProperty("ate_rmse_m", std::to_string(run.ate.rmse));
 }
 
+// Robustness: tracking starts from any frame (the world is the first tracked frame's ground
+// truth), here the middle of the long x sweep.
+TEST(TrackerRedkitchen, StartsMidSequence) {
+  FSLAM_REQUIRE_DATA("redkitchen");
+  const RunSummary run = track_dataset((test::data_dir() / "redkitchen").string(), "300:400");
+  EXPECT_EQ(run.ate.pairs, 100u);
+  EXPECT_EQ(run.lost, 0u);
+  EXPECT_LT(run.ate.rmse, 0.025);  // metres
+  RecordProperty("ate_rmse_m", std::to_string(run.ate.rmse));
+}
+
 }  // namespace
 }  // namespace fslam::core

@@ -158,7 +158,8 @@ class Mapper {
   bool store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::string* why) const;
   std::size_t insert_gaussians(const StoredKeyframe& kf);
   bool step(const StoredKeyframe& kf, MappingLosses* losses, std::string* why);
-  std::size_t prune(double percentile, std::size_t first_candidate);
+  std::size_t prune(double percentile);
+  void reset_round();
   void recompute_filter_3d(std::size_t first);
   void publish();
   std::size_t sample_keyframe(bool uniform);
@@ -174,6 +175,7 @@ class Mapper {
   // Accumulated over the current refinement round, [N].
   std::vector<float> importance_;
   std::vector<std::uint8_t> seen_;
+  std::vector<std::uint8_t> new_in_round_;  // [N] inserted by this round's keyframe
   GaussianGradients grads_;
   std::optional<Eigen::Isometry3d> last_mapping_keyframe_;
 };
