@@ -143,7 +143,7 @@ cv::Mat plane_to_mat(const core::PlanarImage& image, int channel) {
 }
 
 struct EvalSet {
-  std::vector<double> psnr, ssim, depth_l1_cm;
+  std::vector<double> psnr, ssim, depth_l1_cm, depth_missing;
   nlohmann::json to_json() const {
     auto mean = [](const std::vector<double>& v) {
       double s = 0;
@@ -153,7 +153,8 @@ struct EvalSet {
     return {{"frames", psnr.size()},
             {"psnr_db", mean(psnr)},
             {"ssim", mean(ssim)},
-            {"depth_l1_cm", mean(depth_l1_cm)}};
+            {"depth_l1_cm", mean(depth_l1_cm)},
+            {"depth_missing_fraction", mean(depth_missing)}};
   }
 };
 
@@ -389,6 +390,8 @@ int run_slam(const RunArgs& args) {
     set.psnr.push_back(psnr);
     set.ssim.push_back(ssim);
     set.depth_l1_cm.push_back(depth.l1_cm);
+    set.depth_missing.push_back(static_cast<double>(depth.missing_rendered) /
+                                static_cast<double>(std::max<std::size_t>(1, depth.valid_pixels)));
     if (std::find(render_frames.begin(), render_frames.end(), k) != render_frames.end()) {
       core::PlanarImage normals;
       core::depth_to_normals(rendered.median_depth, frame.camera.intrinsics(), &normals, &why);
