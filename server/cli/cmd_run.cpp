@@ -26,6 +26,7 @@
 
 #include "commands.hpp"
 #include "dataset_args.hpp"
+#include "render_images.hpp"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/error.hpp"
 #include "fslam/core/eval/ate.hpp"
@@ -114,32 +115,6 @@ nlohmann::json timing_json(const std::vector<double>& samples) {
           {"p99_ms", percentile(samples, 0.99)},
           {"mean_ms", s.mean},
           {"max_ms", s.max}};
-}
-
-cv::Mat to_rgb8(const core::PlanarImage& image) {
-  cv::Mat out(image.height, image.width, CV_8UC3);
-  for (int v = 0; v < image.height; ++v)
-    for (int u = 0; u < image.width; ++u)
-      for (int c = 0; c < 3; ++c)
-        out.at<cv::Vec3b>(v, u)[c] =
-            cv::saturate_cast<uchar>(std::lround(255.0f * std::clamp(image.at(c, v, u), 0.f, 1.f)));
-  return out;
-}
-
-cv::Mat depth_to_rgb8(const cv::Mat& depth_m, double max_depth) {
-  cv::Mat scaled;
-  depth_m.convertTo(scaled, CV_8U, 255.0 / max_depth);
-  cv::Mat coloured;
-  cv::applyColorMap(scaled, coloured, cv::COLORMAP_TURBO);
-  cv::cvtColor(coloured, coloured, cv::COLOR_BGR2RGB);
-  coloured.setTo(cv::Scalar(0, 0, 0), depth_m <= 0.0f);
-  return coloured;
-}
-
-cv::Mat plane_to_mat(const core::PlanarImage& image, int channel) {
-  cv::Mat out(image.height, image.width, CV_32FC1);
-  std::copy(image.plane(channel), image.plane(channel) + image.pixels(), out.ptr<float>());
-  return out;
 }
 
 struct EvalSet {
@@ -376,7 +351,7 @@ int run_slam(const RunArgs& args) {
     view.T_camera_world = (args.gt_poses ? eval_poses[k] : trajectory[k].T_world_camera).inverse();
     core::RenderResult rendered;
     if (!rasterizer->forward(map, view, settings, &rendered, &why)) return fail(why);
-    cv::Mat rgb = to_rgb8(rendered.colour);
+    cv::Mat rgb = colour_to_rgb8(rendered.colour);
     core::ImageMetricsConfig mc;
     double psnr = 0, ssim = 0;
     core::DepthL1Result depth;
@@ -393,14 +368,7 @@ int run_slam(const RunArgs& args) {
     set.depth_missing.push_back(static_cast<double>(depth.missing_rendered) /
                                 static_cast<double>(std::max<std::size_t>(1, depth.valid_pixels)));
     if (std::find(render_frames.begin(), render_frames.end(), k) != render_frames.end()) {
-      core::PlanarImage normals;
-      core::depth_to_normals(rendered.median_depth, frame.camera.intrinsics(), &normals, &why);
-      cv::Mat nrm(normals.height, normals.width, CV_8UC3);
-      for (int v = 0; v < normals.height; ++v)
-        for (int u = 0; u < normals.width; ++u)
-          for (int c = 0; c < 3; ++c)
-            nrm.at<cv::Vec3b>(v, u)[c] = cv::saturate_cast<uchar>(
-                std::lround(127.5f * (1.0f - normals.at(c, v, u))));
+      const cv::Mat nrm = normals_to_rgb8(rendered.median_depth, frame.camera.intrinsics());
       const double max_depth = 5.0;
       cv::Mat top, bottom, panel;
       cv::hconcat(frame.colour, rgb, top);

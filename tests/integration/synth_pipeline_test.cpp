@@ -7,6 +7,7 @@
 #include "cli_runner.hpp"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/core/io/image_io.hpp"
 
 namespace fslam {
 namespace {
@@ -100,6 +101,23 @@ TEST_F(SynthPipeline, RunTracksMapsAndResumes) {
   EXPECT_EQ(map.size(), m["map"]["gaussians"].get<std::size_t>());
   EXPECT_GT(map.size(), 1000u);
   EXPECT_FALSE(std::filesystem::is_empty(out_dir + "/renders"));
+
+  // The render tool reads the map back: four channels side by side at the dataset's size.
+  const std::string png = dir_ + "/../render.png";
+  ASSERT_EQ(run_command(fslam_bin() + " render --ply " + out_dir + "/map.ply --dataset " + dir_ +
+                            " --frame 5 --trajectory " + out_dir + "/trajectory.txt --out " + png,
+                        &out, &err),
+            0)
+      << out << err;
+  cv::Mat rendered;
+  ASSERT_TRUE(core::read_colour_image(png, &rendered, &why)) << why;
+  EXPECT_EQ(rendered.cols, 4 * 640);
+  EXPECT_EQ(rendered.rows, 480);
+  EXPECT_NE(run_command(fslam_bin() + " render --ply " + out_dir + "/map.ply --dataset " + dir_ +
+                            " --pose 0,0,0,0,0,0,2 --out " + png,
+                        &out, &err),
+            0);
+  EXPECT_NE(err.find("unit length"), std::string::npos) << err;
 
   const std::string resumed = dir_ + "/../resumed";
   ASSERT_EQ(run_command(fslam_bin() + " run --dataset " + dir_ + " --frames 0:10 --out " + resumed +
