@@ -131,6 +131,11 @@ struct EvalSet {
             {"depth_l1_cm", mean(depth_l1_cm)},
             {"depth_missing_fraction", mean(depth_missing)}};
   }
+  void print(const char* label) const {
+    const nlohmann::json j = to_json();
+    std::printf("%s %zu: PSNR %.2f dB, SSIM %.3f, depth L1 %.2f cm\n", label, psnr.size(),
+                j["psnr_db"].get<double>(), j["ssim"].get<double>(), j["depth_l1_cm"].get<double>());
+  }
 };
 
 int run_slam(const RunArgs& args) {
@@ -406,13 +411,8 @@ int run_slam(const RunArgs& args) {
               lost, pipeline.mapper().keyframe_count(), map.size());
   std::printf("SLAM wall time %.1f s = %.2f frames/s (%d thread(s)); peak RSS %.0f MiB\n", slam_s,
               static_cast<double>(n) / slam_s, args.threads, peak_rss_mib());
-  std::printf("held-out frames %zu: PSNR %.2f dB, SSIM %.3f, depth L1 %.2f cm\n",
-              held_out.psnr.size(), held_out.to_json()["psnr_db"].get<double>(),
-              held_out.to_json()["ssim"].get<double>(),
-              held_out.to_json()["depth_l1_cm"].get<double>());
-  std::printf("keyframes %zu: PSNR %.2f dB, SSIM %.3f, depth L1 %.2f cm\n", keyframes.psnr.size(),
-              keyframes.to_json()["psnr_db"].get<double>(), keyframes.to_json()["ssim"].get<double>(),
-              keyframes.to_json()["depth_l1_cm"].get<double>());
+  held_out.print("held-out frames");
+  keyframes.print("keyframes");
   std::printf("wrote %s/{trajectory.txt,map.ply,metrics.json,renders/}\n", args.out.c_str());
   return 0;
 }
