@@ -1,0 +1,175 @@
+#include "fslam/client/client.hpp"
+
+#include <cmath>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "fslam/proto/types.h"
+
+namespace fslam::client {
+namespace {
+
+bool fail(std::string* why, const std::string& message) {
+  if (why) *why = message;
+  return false;
+}
+
+dds_qos_t* reliable_qos() {
+  dds_qos_t* qos = dds_create_qos();
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+  return qos;
+}
+
+// Encodes an image into bytes: raw rows, PNG (lossless) or JPEG.
+bool encode(const cv::Mat& image, PayloadEncoding encoding, int jpeg_quality,
+            std::vector<std::uint8_t>* bytes, std::string* why) {
+  if (encoding == PayloadEncoding::raw) {
+    const std::size_t n = image.total() * image.elemSize();
+    bytes->assign(image.data, image.data + n);
+    return true;
+  }
+  std::vector<int> params;
+  const char* ext = ".png";
+  if (encoding == PayloadEncoding::jpeg) {
+    ext = ".jpg";
+    params = {cv::IMWRITE_JPEG_QUALITY, jpeg_quality};
+  } else {
+    params = {cv::IMWRITE_PNG_COMPRESSION, 1};  // fast: frames are streamed, not archived
+  }
+  if (!cv::imencode(ext, image, *bytes, params)) return fail(why, std::string("cannot encode ") + ext);
+  return true;
+}
+
+fslam_proto_ImageEncoding wire(PayloadEncoding e) {
+  switch (e) {
+    case PayloadEncoding::png: return fslam_proto_ENCODING_PNG;
+    case PayloadEncoding::jpeg: return fslam_proto_ENCODING_JPEG;
+    default: return fslam_proto_ENCODING_RAW;
+  }
+}
+
+}  // namespace
+
+Client::Client(const ClientOptions& options) {
+  participant_ = make_participant(options.domain);
+  dds_qos_t* qos = reliable_qos();
+  frames_topic_ = Entity(check_dds(
+      dds_create_topic(participant_.get(), &fslam_proto_Frame_desc,
+                       topic_name(options.prefix, "frames").c_str(), qos, nullptr),
+      "create topic frames"));
+  poses_topic_ = Entity(check_dds(
+      dds_create_topic(participant_.get(), &fslam_proto_PoseStamped_desc,
+                       topic_name(options.prefix, "poses").c_str(), qos, nullptr),
+      "create topic poses"));
+  frame_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), frames_topic_.get(), qos, nullptr),
+                                   "create frame writer"));
+  pose_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), poses_topic_.get(), qos, nullptr),
+                                  "create pose reader"));
+  dds_delete_qos(qos);
+  waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "create waitset"));
+  check_dds(dds_set_status_mask(pose_reader_.get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
+  check_dds(dds_waitset_attach(waitset_.get(), pose_reader_.get(), pose_reader_.get()), "attach");
+  listener_ = std::thread([this] { listen(); });
+}
+
+Client::~Client() {
+  stop_ = true;
+  dds_waitset_set_trigger(waitset_.get(), true);
+  if (listener_.joinable()) listener_.join();
+}
+
+void Client::on_pose(std::function<void(const PoseUpdate&)> callback) {
+  std::lock_guard<std::mutex> lock(callback_mutex_);
+  pose_callback_ = std::move(callback);
+}
+
+std::uint32_t Client::matched_servers() const {
+  dds_publication_matched_status_t matched{};
+  dds_get_publication_matched_status(frame_writer_.get(), &matched);
+  return matched.current_count;
+}
+
+void Client::listen() {
+  while (!stop_) {
+    dds_attach_t triggered[1];
+    dds_waitset_wait(waitset_.get(), triggered, 1, DDS_MSECS(200));
+    for (;;) {
+      void* samples[16] = {nullptr};
+      dds_sample_info_t info[16];
+      const int32_t n = dds_take(pose_reader_.get(), samples, info, 16, 16);
+      if (n <= 0) break;
+      for (int32_t i = 0; i < n; ++i) {
+        if (!info[i].valid_data) continue;
+        const auto* p = static_cast<const fslam_proto_PoseStamped*>(samples[i]);
+        PoseUpdate update;
+        update.session = p->session ? p->session : "";
+        update.frame_id = p->frame_id;
+        update.timestamp = p->timestamp;
+        for (int k = 0; k < 3; ++k) update.translation[k] = p->T_world_camera.translation[k];
+        for (int k = 0; k < 4; ++k) update.rotation[k] = p->T_world_camera.rotation[k];
+        update.state = static_cast<int>(p->state);
+        update.keyframe = p->keyframe;
+        std::lock_guard<std::mutex> lock(callback_mutex_);
+        if (pose_callback_) pose_callback_(update);
+      }
+      dds_return_loan(pose_reader_.get(), samples, n);
+    }
+  }
+}
+
+bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why) {
+  const CameraIntrinsics& k = frame.intrinsics;
+  if (session.empty()) return fail(why, "push_frame: no session name");
+  if (!(k.fx > 0 && k.fy > 0 && std::isfinite(k.fx) && std::isfinite(k.fy) && std::isfinite(k.cx) &&
+        std::isfinite(k.cy)) ||
+      k.width == 0 || k.height == 0) {
+    return fail(why, "push_frame: intrinsics must be finite with positive focal lengths and size");
+  }
+  if (frame.rgb == nullptr || frame.depth == nullptr) return fail(why, "push_frame: colour and depth are required");
+  if (frame.depth_encoding == PayloadEncoding::jpeg) {
+    return fail(why, "push_frame: depth must be encoded losslessly (raw or png)");
+  }
+  if (!(frame.depth_scale > 0) || !std::isfinite(frame.depth_scale)) {
+    return fail(why, "push_frame: depth scale must be positive");
+  }
+  const int w = static_cast<int>(k.width), h = static_cast<int>(k.height);
+  // Encoded payloads are ordinary PNG/JPEG files of the colour image (OpenCV's encoder takes BGR,
+  // hence the swap); raw payloads are RGB rows (docs/protocol.md).
+  cv::Mat rgb(h, w, CV_8UC3, const_cast<std::uint8_t*>(frame.rgb));
+  cv::Mat depth(h, w, CV_16UC1, const_cast<std::uint16_t*>(frame.depth));
+  cv::Mat bgr;
+  cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+  std::vector<std::uint8_t> colour_bytes, depth_bytes;
+  if (!encode(frame.colour_encoding == PayloadEncoding::raw ? rgb : bgr, frame.colour_encoding,
+              frame.jpeg_quality, &colour_bytes, why) ||
+      !encode(depth, frame.depth_encoding, 0, &depth_bytes, why)) {
+    return false;
+  }
+  fslam_proto_Frame msg{};
+  std::string session_copy = session;
+  msg.session = session_copy.data();
+  msg.frame_id = frame.frame_id;
+  msg.timestamp = frame.timestamp;
+  msg.intrinsics = {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
+  msg.depth_scale = frame.depth_scale;
+  msg.colour = {wire(frame.colour_encoding), k.width, k.height, 3, 1, {}};
+  msg.colour.data = {static_cast<uint32_t>(colour_bytes.size()),
+                     static_cast<uint32_t>(colour_bytes.size()), colour_bytes.data(), false};
+  msg.depth = {wire(frame.depth_encoding), k.width, k.height, 1, 2, {}};
+  msg.depth.data = {static_cast<uint32_t>(depth_bytes.size()), static_cast<uint32_t>(depth_bytes.size()),
+                    depth_bytes.data(), false};
+  msg.has_gt_pose = frame.has_gt_pose;
+  for (int i = 0; i < 3; ++i) msg.gt_pose.translation[i] = frame.gt_translation[i];
+  for (int i = 0; i < 4; ++i) msg.gt_pose.rotation[i] = frame.gt_rotation[i];
+  const dds_return_t rc = dds_write(frame_writer_.get(), &msg);
+  if (rc != DDS_RETCODE_OK) {
+    return fail(why, std::string("push_frame: DDS write failed: ") + dds_strretcode(rc));
+  }
+  return true;
+}
+
+}  // namespace fslam::client

@@ -1,0 +1,159 @@
+// The thin client against a stand-in server on the loopback profile: frames arrive with their
+// payloads intact (depth lossless), poses come back through the callback, bad frames are
+// refused before they reach the wire.
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <set>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/core/mat.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "fslam/client/client.hpp"
+#include "fslam/proto/types.h"
+#include "test_support.hpp"
+
+namespace fslam::client {
+namespace {
+
+constexpr int kW = 64, kH = 48;
+
+struct TestFrame {
+  std::vector<std::uint8_t> rgb = std::vector<std::uint8_t>(kW * kH * 3);
+  std::vector<std::uint16_t> depth = std::vector<std::uint16_t>(kW * kH);
+  FrameInput input;
+  explicit TestFrame(std::uint64_t id) {
+    for (int i = 0; i < kW * kH; ++i) {
+      rgb[3 * i] = static_cast<std::uint8_t>(i % 251);
+      rgb[3 * i + 1] = static_cast<std::uint8_t>(id * 7);
+      rgb[3 * i + 2] = 40;
+      depth[i] = static_cast<std::uint16_t>(i % 7 == 0 ? 0 : 1000 + i + id);  // with holes
+    }
+    input.frame_id = id;
+    input.timestamp = static_cast<double>(id) / 30.0;
+    input.intrinsics = {50.f, 50.f, 31.5f, 23.5f, kW, kH};
+    input.rgb = rgb.data();
+    input.depth = depth.data();
+  }
+};
+
+TEST(Client, FramesReachAServerAndPosesComeBack) {
+  test::use_loopback_dds();
+  const std::string prefix = "client" + std::to_string(getpid());
+  // The stand-in server: reads frames, checks the depth payload, answers with a pose.
+  Entity participant = make_participant(DDS_DOMAIN_DEFAULT);
+  dds_qos_t* qos = dds_create_qos();
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+  Entity frames(check_dds(dds_create_topic(participant.get(), &fslam_proto_Frame_desc,
+                                           topic_name(prefix, "frames").c_str(), qos, nullptr), "t"));
+  Entity poses(check_dds(dds_create_topic(participant.get(), &fslam_proto_PoseStamped_desc,
+                                          topic_name(prefix, "poses").c_str(), qos, nullptr), "t"));
+  Entity frame_reader(check_dds(dds_create_reader(participant.get(), frames.get(), qos, nullptr), "r"));
+  Entity pose_writer(check_dds(dds_create_writer(participant.get(), poses.get(), qos, nullptr), "w"));
+  dds_delete_qos(qos);
+
+  ClientOptions options;
+  options.prefix = prefix;
+  Client client(options);
+  std::mutex mutex;
+  std::set<std::uint64_t> received;
+  client.on_pose([&](const PoseUpdate& p) {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(p.session, "kitchen");
+    EXPECT_DOUBLE_EQ(p.translation[0], 0.01 * static_cast<double>(p.frame_id));
+    received.insert(p.frame_id);
+  });
+  for (int i = 0; i < 500 && client.matched_servers() == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_GT(client.matched_servers(), 0u) << "the client never matched the server on loopback";
+  dds_subscription_matched_status_t sub{};
+  for (int i = 0; i < 500 && sub.current_count == 0; ++i) {
+    dds_get_subscription_matched_status(frame_reader.get(), &sub);
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+
+  constexpr int kFrames = 10;
+  for (int f = 0; f < kFrames; ++f) {
+    TestFrame frame(static_cast<std::uint64_t>(f));
+    frame.input.colour_encoding = f % 2 == 0 ? PayloadEncoding::jpeg : PayloadEncoding::raw;
+    std::string why;
+    ASSERT_TRUE(client.push_frame("kitchen", frame.input, &why)) << why;
+  }
+  int served = 0;
+  for (int spin = 0; spin < 500 && served < kFrames; ++spin) {
+    void* samples[4] = {nullptr};
+    dds_sample_info_t info[4];
+    const int32_t n = dds_take(frame_reader.get(), samples, info, 4, 4);
+    if (n <= 0) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      continue;
+    }
+    for (int32_t i = 0; i < n; ++i) {
+      if (!info[i].valid_data) continue;
+      const auto* msg = static_cast<const fslam_proto_Frame*>(samples[i]);
+      TestFrame expected(msg->frame_id);
+      EXPECT_EQ(msg->depth.encoding, fslam_proto_ENCODING_PNG);
+      const std::vector<std::uint8_t> png(msg->depth.data._buffer,
+                                          msg->depth.data._buffer + msg->depth.data._length);
+      const cv::Mat depth = cv::imdecode(png, cv::IMREAD_UNCHANGED);
+      ASSERT_EQ(depth.type(), CV_16UC1);
+      EXPECT_EQ(0, std::memcmp(depth.data, expected.depth.data(), expected.depth.size() * 2))
+          << "depth must arrive bit-exact";
+      EXPECT_FLOAT_EQ(msg->intrinsics.fx, 50.f);
+      fslam_proto_PoseStamped pose{};
+      pose.session = msg->session;
+      pose.frame_id = msg->frame_id;
+      pose.timestamp = msg->timestamp;
+      pose.T_world_camera.translation[0] = 0.01 * static_cast<double>(msg->frame_id);
+      pose.T_world_camera.rotation[3] = 1.0;
+      pose.state = fslam_proto_TRACKING_OK;
+      ASSERT_EQ(dds_write(pose_writer.get(), &pose), DDS_RETCODE_OK);
+      ++served;
+    }
+    dds_return_loan(frame_reader.get(), samples, n);
+  }
+  EXPECT_EQ(served, kFrames);
+  for (int i = 0; i < 500; ++i) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (received.size() == static_cast<std::size_t>(kFrames)) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(received.size(), static_cast<std::size_t>(kFrames));
+}
+
+TEST(Client, RefusesBadFramesWithAReason) {
+  test::use_loopback_dds();
+  ClientOptions options;
+  options.prefix = "clientbad" + std::to_string(getpid());
+  Client client(options);
+  std::string why;
+  TestFrame frame(1);
+  EXPECT_FALSE(client.push_frame("", frame.input, &why));
+  EXPECT_NE(why.find("session"), std::string::npos);
+  frame.input.intrinsics.fx = 0;
+  EXPECT_FALSE(client.push_frame("s", frame.input, &why));
+  EXPECT_NE(why.find("intrinsics"), std::string::npos);
+  frame.input.intrinsics.fx = std::nanf("");
+  EXPECT_FALSE(client.push_frame("s", frame.input, &why));
+  TestFrame lossy(2);
+  lossy.input.depth_encoding = PayloadEncoding::jpeg;
+  EXPECT_FALSE(client.push_frame("s", lossy.input, &why));
+  EXPECT_NE(why.find("lossless"), std::string::npos);
+  TestFrame missing(3);
+  missing.input.depth = nullptr;
+  EXPECT_FALSE(client.push_frame("s", missing.input, &why));
+}
+
+}  // namespace
+}  // namespace fslam::client
