@@ -1,5 +1,7 @@
 #include "fslam/client/client.hpp"
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <vector>
 
@@ -65,14 +67,28 @@ Client::Client(const ClientOptions& options) {
       dds_create_topic(participant_.get(), &fslam_proto_PoseStamped_desc,
                        topic_name(options.prefix, "poses").c_str(), qos, nullptr),
       "create topic poses"));
+  control_topic_ = Entity(check_dds(
+      dds_create_topic(participant_.get(), &fslam_proto_SessionControl_desc,
+                       topic_name(options.prefix, "session").c_str(), qos, nullptr),
+      "create topic session"));
+  results_topic_ = Entity(check_dds(
+      dds_create_topic(participant_.get(), &fslam_proto_Result_desc,
+                       topic_name(options.prefix, "results").c_str(), qos, nullptr),
+      "create topic results"));
   frame_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), frames_topic_.get(), qos, nullptr),
                                    "create frame writer"));
+  control_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), control_topic_.get(), qos, nullptr),
+                                     "create session writer"));
   pose_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), poses_topic_.get(), qos, nullptr),
                                   "create pose reader"));
+  result_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), results_topic_.get(), qos, nullptr),
+                                    "create result reader"));
   dds_delete_qos(qos);
   waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "create waitset"));
-  check_dds(dds_set_status_mask(pose_reader_.get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
-  check_dds(dds_waitset_attach(waitset_.get(), pose_reader_.get(), pose_reader_.get()), "attach");
+  for (const Entity* reader : {&pose_reader_, &result_reader_}) {
+    check_dds(dds_set_status_mask(reader->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
+    check_dds(dds_waitset_attach(waitset_.get(), reader->get(), reader->get()), "attach");
+  }
   listener_ = std::thread([this] { listen(); });
 }
 
@@ -87,6 +103,58 @@ void Client::on_pose(std::function<void(const PoseUpdate&)> callback) {
   pose_callback_ = std::move(callback);
 }
 
+void Client::on_result(std::function<void(const ResultUpdate&)> callback) {
+  std::lock_guard<std::mutex> lock(callback_mutex_);
+  result_callback_ = std::move(callback);
+}
+
+bool Client::open_session(const std::string& session, const std::string& map_name, int timeout_ms,
+                          std::string* why) {
+  return control(session, map_name, true, timeout_ms, why);
+}
+
+bool Client::close_session(const std::string& session, int timeout_ms, std::string* why) {
+  return control(session, "", false, timeout_ms, why);
+}
+
+bool Client::control(const std::string& session, const std::string& map_name, bool open,
+                     int timeout_ms, std::string* why) {
+  if (session.empty()) return fail(why, "session control: no session name");
+  std::uint64_t id = 0;
+  {
+    std::lock_guard<std::mutex> lock(callback_mutex_);
+    id = next_request_++;
+    awaited_[id] = ResultUpdate{};
+    awaited_[id].request_id = 0;  // 0 marks "not answered yet"
+  }
+  fslam_proto_SessionControl msg{};
+  std::string s = session, m = map_name;
+  msg.session = s.data();
+  msg.request_id = id;
+  msg.command = open ? fslam_proto_SESSION_OPEN : fslam_proto_SESSION_CLOSE;
+  msg.map_name = m.data();
+  msg.attach_only = false;
+  // Wait for discovery (a server's session reader), then send once and wait for the answer.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+  dds_publication_matched_status_t matched{};
+  for (;;) {
+    dds_get_publication_matched_status(control_writer_.get(), &matched);
+    if (matched.current_count > 0 || std::chrono::steady_clock::now() >= deadline) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  std::unique_lock<std::mutex> lock(callback_mutex_);
+  if (matched.current_count == 0 || dds_write(control_writer_.get(), &msg) != DDS_RETCODE_OK ||
+      !result_arrived_.wait_until(lock, deadline, [&] { return awaited_[id].request_id != 0; })) {
+    awaited_.erase(id);
+    return fail(why, std::string(open ? "open" : "close") + " session '" + session +
+                         "': no answer from a server within " + std::to_string(timeout_ms) + " ms");
+  }
+  const ResultUpdate answer = awaited_[id];
+  awaited_.erase(id);
+  if (!answer.ok) return fail(why, answer.error);
+  return true;
+}
+
 std::uint32_t Client::matched_servers() const {
   dds_publication_matched_status_t matched{};
   dds_get_publication_matched_status(frame_writer_.get(), &matched);
@@ -95,29 +163,36 @@ std::uint32_t Client::matched_servers() const {
 
 void Client::listen() {
   while (!stop_) {
-    dds_attach_t triggered[1];
-    dds_waitset_wait(waitset_.get(), triggered, 1, DDS_MSECS(200));
-    for (;;) {
-      void* samples[16] = {nullptr};
-      dds_sample_info_t info[16];
-      const int32_t n = dds_take(pose_reader_.get(), samples, info, 16, 16);
-      if (n <= 0) break;
-      for (int32_t i = 0; i < n; ++i) {
-        if (!info[i].valid_data) continue;
-        const auto* p = static_cast<const fslam_proto_PoseStamped*>(samples[i]);
-        PoseUpdate update;
-        update.session = p->session ? p->session : "";
-        update.frame_id = p->frame_id;
-        update.timestamp = p->timestamp;
-        for (int k = 0; k < 3; ++k) update.translation[k] = p->T_world_camera.translation[k];
-        for (int k = 0; k < 4; ++k) update.rotation[k] = p->T_world_camera.rotation[k];
-        update.state = static_cast<int>(p->state);
-        update.keyframe = p->keyframe;
-        std::lock_guard<std::mutex> lock(callback_mutex_);
-        if (pose_callback_) pose_callback_(update);
+    dds_attach_t triggered[2];
+    dds_waitset_wait(waitset_.get(), triggered, 2, DDS_MSECS(200));
+    take_each<fslam_proto_Result>(result_reader_.get(), [&](const fslam_proto_Result& r) {
+      ResultUpdate update;
+      update.client = r.client ? r.client : "";
+      update.request_id = r.request_id;
+      update.map_name = r.map_name ? r.map_name : "";
+      update.ok = r.status == fslam_proto_RESULT_OK;
+      update.error = r.error ? r.error : "";
+      std::lock_guard<std::mutex> lock(callback_mutex_);
+      const auto waiting = awaited_.find(update.request_id);
+      if (waiting != awaited_.end() && waiting->second.request_id == 0) {
+        waiting->second = update;
+        result_arrived_.notify_all();
+      } else if (result_callback_) {
+        result_callback_(update);
       }
-      dds_return_loan(pose_reader_.get(), samples, n);
-    }
+    });
+    take_each<fslam_proto_PoseStamped>(pose_reader_.get(), [&](const fslam_proto_PoseStamped& p) {
+      PoseUpdate update;
+      update.session = p.session ? p.session : "";
+      update.frame_id = p.frame_id;
+      update.timestamp = p.timestamp;
+      for (int k = 0; k < 3; ++k) update.translation[k] = p.T_world_camera.translation[k];
+      for (int k = 0; k < 4; ++k) update.rotation[k] = p.T_world_camera.rotation[k];
+      update.state = static_cast<int>(p.state);
+      update.keyframe = p.keyframe;
+      std::lock_guard<std::mutex> lock(callback_mutex_);
+      if (pose_callback_) pose_callback_(update);
+    });
   }
 }
 

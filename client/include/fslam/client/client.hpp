@@ -4,7 +4,9 @@
 
 #include <atomic>
 #include <cstdint>
+#include <condition_variable>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -48,6 +50,16 @@ struct PoseUpdate {
   bool keyframe = false;
 };
 
+// A server's answer to a request or session control, or its report of a rejected or dropped
+// frame (request_id = frame id, client = session).
+struct ResultUpdate {
+  std::string client;
+  std::uint64_t request_id = 0;
+  std::string map_name;
+  bool ok = false;
+  std::string error;
+};
+
 struct ClientOptions {
   std::string prefix = "fslam";        // topic prefix of the deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
@@ -65,17 +77,32 @@ class Client {
   // bad input (no session, zero or non-finite intrinsics, missing images, a lossy depth
   // encoding, an encoder failure).
   bool push_frame(const std::string& session, const FrameInput& frame, std::string* why);
+  // Opens (creates or attaches to `map_name`) or closes a streaming session and waits up to
+  // timeout_ms for the server's answer. False with `why` on an error result or no answer.
+  bool open_session(const std::string& session, const std::string& map_name, int timeout_ms,
+                    std::string* why);
+  bool close_session(const std::string& session, int timeout_ms, std::string* why);
   // Called on the client's listener thread for every pose the server publishes.
   void on_pose(std::function<void(const PoseUpdate&)> callback);
+  // Called on the listener thread for results that no open/close call is waiting for (frame
+  // errors and drops).
+  void on_result(std::function<void(const ResultUpdate&)> callback);
   // Writers and readers matched so far (for waiting on discovery).
   std::uint32_t matched_servers() const;
 
  private:
   void listen();
+  bool control(const std::string& session, const std::string& map_name, bool open, int timeout_ms,
+               std::string* why);
 
-  Entity participant_, frames_topic_, poses_topic_, frame_writer_, pose_reader_, waitset_;
+  Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_;
+  Entity frame_writer_, pose_reader_, control_writer_, result_reader_, waitset_;
   std::mutex callback_mutex_;
   std::function<void(const PoseUpdate&)> pose_callback_;
+  std::function<void(const ResultUpdate&)> result_callback_;
+  std::condition_variable result_arrived_;
+  std::map<std::uint64_t, ResultUpdate> awaited_;  // request id -> answer (filled when it comes)
+  std::uint64_t next_request_ = 1ull << 62;  // apart from frame ids, which frame results echo
   std::atomic<bool> stop_{false};
   std::thread listener_;
 };

@@ -54,4 +54,24 @@ Entity make_participant(dds_domainid_t domain);
 // Tests use their own prefix so that parallel runs never see each other.
 std::string topic_name(const std::string& prefix, const std::string& topic);
 
+// Takes every sample `reader` holds now, in batches, and calls fn(const T&) on each valid one;
+// returns how many it handled. T is the reader's generated C type.
+template <typename T, typename Fn>
+int take_each(dds_entity_t reader, Fn&& fn) {
+  constexpr int kBatch = 16;
+  int handled = 0;
+  for (;;) {
+    void* samples[kBatch] = {nullptr};
+    dds_sample_info_t info[kBatch];
+    const int32_t n = dds_take(reader, samples, info, kBatch, kBatch);
+    if (n <= 0) return handled;
+    for (int32_t i = 0; i < n; ++i) {
+      if (!info[i].valid_data) continue;
+      fn(*static_cast<const T*>(samples[i]));
+      ++handled;
+    }
+    dds_return_loan(reader, samples, n);
+  }
+}
+
 }  // namespace fslam::client

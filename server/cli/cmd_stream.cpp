@@ -1,0 +1,170 @@
+// `fslam stream`: plays a dataset to a running fslam-server, writes the poses it sends back as a
+// TUM trajectory and prints ATE when the dataset has ground truth.
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+
+#include "commands.hpp"
+#include "dataset_args.hpp"
+#include "fslam/client/client.hpp"
+#include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/eval/ate.hpp"
+#include "fslam/core/io/trajectory_io.hpp"
+
+namespace fslam::cli {
+namespace {
+
+struct StreamArgs {
+  DatasetArgs dataset;
+  std::string session = "stream";
+  std::string map;
+  std::string rate = "max";  // frames per second, or max
+  std::string out;
+  std::string prefix = "fslam";
+  int timeout_s = 60;        // for the last poses after the last frame
+};
+
+int run_stream(const StreamArgs& args) {
+  core::DatasetOptions options;
+  std::string why;
+  if (!args.dataset.to_options(&options, &why)) return fail(why);
+  auto dataset = core::open_dataset(args.dataset.path, options, &why);
+  if (!dataset) return fail(why);
+  double rate = 0.0;
+  if (args.rate != "max") {
+    try {
+      rate = std::stod(args.rate);
+    } catch (const std::exception&) {
+      rate = -1;
+    }
+    if (!(rate > 0)) return fail("--rate must be a positive number of frames per second or 'max'");
+  }
+  client::ClientOptions copts;
+  copts.prefix = args.prefix;
+  client::Client client(copts);
+  std::mutex mutex;
+  std::map<std::uint64_t, client::PoseUpdate> poses;
+  std::atomic<std::size_t> errors{0};
+  client.on_pose([&](const client::PoseUpdate& p) {
+    if (p.session != args.session) return;
+    std::lock_guard<std::mutex> lock(mutex);
+    poses[p.frame_id] = p;
+  });
+  client.on_result([&](const client::ResultUpdate& r) {
+    if (!r.ok) {
+      ++errors;
+      std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
+    }
+  });
+  if (!client.open_session(args.session, args.map.empty() ? args.session : args.map, 10000, &why)) {
+    return fail(why);
+  }
+  const std::size_t n = dataset->size();
+  std::fprintf(stderr, "streaming %zu frames of %s to session '%s' at %s\n", n,
+               dataset->root().c_str(), args.session.c_str(),
+               rate > 0 ? (args.rate + " fps").c_str() : "full speed");
+  Progress progress("stream", n);
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<double> timestamps(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (rate > 0) {
+      std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                std::chrono::duration<double>(static_cast<double>(i) / rate)));
+    }
+    core::RgbdFrame frame;
+    if (!dataset->load(i, &frame, &why)) return fail(why);
+    cv::Mat depth_raw;
+    frame.depth.convertTo(depth_raw, CV_16UC1, dataset->depth_scale());
+    client::FrameInput input;
+    input.frame_id = i;
+    input.timestamp = frame.timestamp;
+    timestamps[i] = frame.timestamp;
+    input.intrinsics = {static_cast<float>(frame.camera.fx), static_cast<float>(frame.camera.fy),
+                        static_cast<float>(frame.camera.cx), static_cast<float>(frame.camera.cy),
+                        static_cast<std::uint32_t>(frame.camera.width),
+                        static_cast<std::uint32_t>(frame.camera.height)};
+    input.depth_scale = static_cast<float>(dataset->depth_scale());
+    input.rgb = frame.colour.ptr<std::uint8_t>();
+    input.depth = depth_raw.ptr<std::uint16_t>();
+    if (frame.T_world_camera_gt) {
+      input.has_gt_pose = true;
+      const Eigen::Quaterniond q(frame.T_world_camera_gt->rotation());
+      for (int k = 0; k < 3; ++k) input.gt_translation[k] = frame.T_world_camera_gt->translation()[k];
+      input.gt_rotation[0] = q.x();
+      input.gt_rotation[1] = q.y();
+      input.gt_rotation[2] = q.z();
+      input.gt_rotation[3] = q.w();
+    }
+    if (!client.push_frame(args.session, input, &why)) return fail(why);
+    progress.update(i + 1);
+  }
+  progress.finish();
+  // Wait for the poses of every frame (or for the server to say why some will not come).
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(args.timeout_s);
+  for (;;) {
+    std::size_t have = 0;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      have = poses.size();
+    }
+    if (have + errors.load() >= n || std::chrono::steady_clock::now() > deadline) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  if (!client.close_session(args.session, 30000, &why)) std::fprintf(stderr, "close: %s\n", why.c_str());
+  core::Trajectory trajectory;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& [id, p] : poses) {
+      core::StampedPose sp;
+      sp.timestamp = p.timestamp;
+      const Eigen::Quaterniond q(p.rotation[3], p.rotation[0], p.rotation[1], p.rotation[2]);
+      sp.T_world_camera.linear() = q.normalized().toRotationMatrix();
+      sp.T_world_camera.translation() = Eigen::Vector3d(p.translation[0], p.translation[1], p.translation[2]);
+      trajectory.push_back(sp);
+    }
+  }
+  const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::printf("frames sent %zu, poses received %zu, server errors %zu, %.1f s (%.1f frames/s)\n", n,
+              trajectory.size(), errors.load(), elapsed, static_cast<double>(n) / elapsed);
+  if (!args.out.empty()) {
+    if (!core::write_tum_trajectory(args.out, trajectory, &why)) return fail(why);
+    std::printf("wrote %s\n", args.out.c_str());
+  }
+  if (dataset->has_ground_truth() && !trajectory.empty()) {
+    core::AteResult ate;
+    if (core::compute_ate(dataset->ground_truth(), trajectory, core::AteConfig{}, &ate, &why)) {
+      std::printf("ATE RMSE %.4f m (mean %.4f) over %zu pairs, SE(3)\n", ate.rmse, ate.mean, ate.pairs);
+    }
+  }
+  return trajectory.size() == n ? 0 : fail("only " + std::to_string(trajectory.size()) + " of " +
+                                           std::to_string(n) + " poses arrived");
+}
+
+}  // namespace
+
+void add_stream_command(CLI::App& root, CommandList* commands) {
+  auto* app = root.add_subcommand(
+      "stream", "Play a dataset to a running fslam-server over DDS; write the poses it returns "
+                "and print ATE when the dataset has ground truth");
+  auto args = std::make_shared<StreamArgs>();
+  add_dataset_options(app, &args->dataset);
+  app->add_option("--session", args->session, "Session name")->capture_default_str();
+  app->add_option("--map", args->map, "Map to create or attach to (default: the session name)");
+  app->add_option("--rate", args->rate, "Frames per second, or max")->capture_default_str();
+  app->add_option("--out", args->out, "Trajectory of the received poses (TUM)");
+  app->add_option("--prefix", args->prefix, "Topic prefix of the server")->capture_default_str();
+  app->add_option("--timeout", args->timeout_s, "Seconds to wait for the last poses")
+      ->capture_default_str();
+  commands->push_back({app, [args] { return run_stream(*args); }});
+}
+
+}  // namespace fslam::cli
