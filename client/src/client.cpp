@@ -83,9 +83,18 @@ Client::Client(const ClientOptions& options) {
                                   "create pose reader"));
   result_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), results_topic_.get(), qos, nullptr),
                                     "create result reader"));
+  status_topic_ = Entity(check_dds(
+      dds_create_topic(participant_.get(), &fslam_proto_SessionStatus_desc,
+                       topic_name(options.prefix, "status").c_str(), qos, nullptr),
+      "create topic status"));
   dds_delete_qos(qos);
+  dds_qos_t* best_effort = dds_create_qos();  // status is best effort (docs/protocol.md)
+  dds_qset_reliability(best_effort, DDS_RELIABILITY_BEST_EFFORT, 0);
+  status_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), status_topic_.get(), best_effort, nullptr),
+                                    "create status reader"));
+  dds_delete_qos(best_effort);
   waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "create waitset"));
-  for (const Entity* reader : {&pose_reader_, &result_reader_}) {
+  for (const Entity* reader : {&pose_reader_, &result_reader_, &status_reader_}) {
     check_dds(dds_set_status_mask(reader->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
     check_dds(dds_waitset_attach(waitset_.get(), reader->get(), reader->get()), "attach");
   }
@@ -106,6 +115,11 @@ void Client::on_pose(std::function<void(const PoseUpdate&)> callback) {
 void Client::on_result(std::function<void(const ResultUpdate&)> callback) {
   std::lock_guard<std::mutex> lock(callback_mutex_);
   result_callback_ = std::move(callback);
+}
+
+void Client::on_status(std::function<void(const StatusUpdate&)> callback) {
+  std::lock_guard<std::mutex> lock(callback_mutex_);
+  status_callback_ = std::move(callback);
 }
 
 bool Client::open_session(const std::string& session, const std::string& map_name, int timeout_ms,
@@ -163,8 +177,24 @@ std::uint32_t Client::matched_servers() const {
 
 void Client::listen() {
   while (!stop_) {
-    dds_attach_t triggered[2];
-    dds_waitset_wait(waitset_.get(), triggered, 2, DDS_MSECS(200));
+    dds_attach_t triggered[3];
+    dds_waitset_wait(waitset_.get(), triggered, 3, DDS_MSECS(200));
+    take_each<fslam_proto_SessionStatus>(status_reader_.get(), [&](const fslam_proto_SessionStatus& st) {
+      StatusUpdate update;
+      update.session = st.session ? st.session : "";
+      update.map_name = st.map_name ? st.map_name : "";
+      update.last_drop_reason = st.last_drop_reason ? st.last_drop_reason : "";
+      update.queue_depth = st.queue_depth;
+      update.frames_received = st.frames_received;
+      update.frames_processed = st.frames_processed;
+      update.frames_dropped = st.frames_dropped;
+      update.map_gaussians = st.map_gaussians;
+      update.resident_bytes = st.resident_bytes;
+      update.track_ms_p50 = st.track_ms_p50;
+      update.track_ms_p99 = st.track_ms_p99;
+      std::lock_guard<std::mutex> lock(callback_mutex_);
+      if (status_callback_) status_callback_(update);
+    });
     take_each<fslam_proto_Result>(result_reader_.get(), [&](const fslam_proto_Result& r) {
       ResultUpdate update;
       update.client = r.client ? r.client : "";

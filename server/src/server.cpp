@@ -1,6 +1,12 @@
 #include "fslam/server/server.hpp"
 
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
 #include <utility>
+#include <vector>
 
 #include "fslam/core/error.hpp"
 #include "fslam/server/backend_factory.hpp"
@@ -20,11 +26,35 @@ struct Server::Session {
   std::deque<core::RgbdFrame> queue;
   bool closing = false;
   std::thread tracking, mapping;
+  // Status counters (guarded by `mutex`).
+  std::uint64_t received = 0, processed = 0, dropped = 0;
+  std::string last_drop_reason;
+  std::deque<double> track_ms;  // the latest tracking times, for p50 / p99
 };
+
+namespace {
+
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[static_cast<std::size_t>(q * static_cast<double>(v.size() - 1) + 0.5)];
+}
+
+std::uint64_t resident_bytes() {
+  long pages = 0, resident = 0;
+  if (FILE* f = std::fopen("/proc/self/statm", "r")) {
+    if (std::fscanf(f, "%ld %ld", &pages, &resident) != 2) resident = 0;
+    std::fclose(f);
+  }
+  return static_cast<std::uint64_t>(resident) * static_cast<std::uint64_t>(sysconf(_SC_PAGESIZE));
+}
+
+}  // namespace
 
 bool ServerConfig::is_valid(std::string* why) const {
   if (prefix.empty()) return core::fail(why, "server: empty topic prefix");
   if (queue_capacity == 0) return core::fail(why, "server: queue_capacity must be > 0");
+  if (status_period_ms <= 0) return core::fail(why, "server: status_period_ms must be > 0");
   return pipeline.is_valid(why);
 }
 
@@ -58,11 +88,16 @@ bool Server::activate(std::string* why) {
     poses_topic_ = topic(&fslam_proto_PoseStamped_desc, "poses");
     control_topic_ = topic(&fslam_proto_SessionControl_desc, "session");
     results_topic_ = topic(&fslam_proto_Result_desc, "results");
+    status_topic_ = topic(&fslam_proto_SessionStatus_desc, "status");
     frame_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), frames_topic_.get(), qos, nullptr), "frame reader"));
     control_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), control_topic_.get(), qos, nullptr), "session reader"));
     pose_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), poses_topic_.get(), qos, nullptr), "pose writer"));
     result_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), results_topic_.get(), qos, nullptr), "result writer"));
     dds_delete_qos(qos);
+    dds_qos_t* best_effort = dds_create_qos();
+    dds_qset_reliability(best_effort, DDS_RELIABILITY_BEST_EFFORT, 0);
+    status_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), status_topic_.get(), best_effort, nullptr), "status writer"));
+    dds_delete_qos(best_effort);
     waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "waitset"));
     for (const Entity* reader : {&frame_reader_, &control_reader_}) {
       check_dds(dds_set_status_mask(reader->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
@@ -102,6 +137,7 @@ void Server::cleanup() {
   control_reader_.reset();
   pose_writer_.reset();
   result_writer_.reset();
+  status_writer_.reset();
   participant_.reset();
 }
 
@@ -113,7 +149,12 @@ ServerStats Server::stats() const {
 }
 
 void Server::ingest() {
+  auto next_status = std::chrono::steady_clock::now();
   while (!stop_) {
+    if (std::chrono::steady_clock::now() >= next_status) {
+      publish_status();
+      next_status += std::chrono::milliseconds(config_.status_period_ms);
+    }
     dds_attach_t triggered[2];
     dds_waitset_wait(waitset_.get(), triggered, 2, DDS_MSECS(200));
     // Session control first, so that a session opened just before its first frame exists.
@@ -121,6 +162,33 @@ void Server::ingest() {
         control_reader_.get(), [&](const fslam_proto_SessionControl& m) { handle_control(m); });
     client::take_each<fslam_proto_Frame>(frame_reader_.get(),
                                          [&](const fslam_proto_Frame& m) { handle_frame(m); });
+  }
+}
+
+void Server::publish_status() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const std::uint64_t rss = resident_bytes();
+  for (const auto& [name, s] : sessions_) {
+    fslam_proto_SessionStatus st{};
+    std::string session = s->name, map = s->map_name, reason;
+    std::vector<double> ms;
+    {
+      std::lock_guard<std::mutex> qlock(s->mutex);
+      st.queue_depth = static_cast<std::uint32_t>(s->queue.size());
+      st.frames_received = s->received;
+      st.frames_processed = s->processed;
+      st.frames_dropped = s->dropped;
+      reason = s->last_drop_reason;
+      ms.assign(s->track_ms.begin(), s->track_ms.end());
+    }
+    st.session = session.data();
+    st.map_name = map.data();
+    st.last_drop_reason = reason.data();
+    st.map_gaussians = s->pipeline->latest_map()->size();
+    st.track_ms_p50 = static_cast<float>(quantile(ms, 0.5));
+    st.track_ms_p99 = static_cast<float>(quantile(ms, 0.99));
+    st.resident_bytes = rss;
+    dds_write(status_writer_.get(), &st);
   }
 }
 
@@ -161,9 +229,12 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       s->pipeline = std::make_unique<core::SlamPipeline>(config_.pipeline, rasterizer);
       Session* raw = s.get();
       s->tracking = std::thread([this, raw] { run_tracking(raw); });
-      s->mapping = std::thread([raw] {
+      s->mapping = std::thread([this, raw] {
         std::string mwhy;
-        raw->pipeline->run_mapping(nullptr, &mwhy);
+        if (!raw->pipeline->run_mapping(nullptr, &mwhy)) {
+          // Tracking goes on; clients learn that the map stopped growing, and why.
+          publish_result(raw->name.c_str(), 0, raw->map_name, "mapping failed: " + mwhy);
+        }
       });
       sessions_[name] = std::move(s);
     } else {
@@ -211,17 +282,26 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
   else decode_frame(msg, &frame, &why);
   if (!why.empty()) {
     ++stats_.frames_rejected;
-    publish_result(msg.session, msg.frame_id, name, "frame " + std::to_string(msg.frame_id) + ": " + why);
+    const std::string message = "frame " + std::to_string(msg.frame_id) + ": " + why;
+    if (it != sessions_.end()) {
+      std::lock_guard<std::mutex> qlock(it->second->mutex);
+      ++it->second->received;
+      ++it->second->dropped;
+      it->second->last_drop_reason = message;
+    }
+    publish_result(msg.session, msg.frame_id, name, message);
     return;
   }
   Session& s = *it->second;
   {
     std::lock_guard<std::mutex> qlock(s.mutex);
+    ++s.received;
     if (s.queue.size() >= config_.queue_capacity) {
       ++stats_.frames_dropped;
-      publish_result(msg.session, msg.frame_id, name,
-                     "frame " + std::to_string(msg.frame_id) + " dropped: queue full (" +
-                         std::to_string(config_.queue_capacity) + " frames)");
+      ++s.dropped;
+      s.last_drop_reason = "frame " + std::to_string(msg.frame_id) + " dropped: queue full (" +
+                           std::to_string(config_.queue_capacity) + " frames)";
+      publish_result(msg.session, msg.frame_id, name, s.last_drop_reason);
       return;
     }
     s.queue.push_back(std::move(frame));
@@ -244,7 +324,16 @@ void Server::run_tracking(Session* s) {
     first = false;
     core::TrackingResult result;
     std::string why;
-    if (!s->pipeline->process_frame(frame, &result, &why)) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const bool tracked = s->pipeline->process_frame(frame, &result, &why);
+    {
+      std::lock_guard<std::mutex> lock(s->mutex);
+      ++s->processed;
+      s->track_ms.push_back(
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      if (s->track_ms.size() > 1000) s->track_ms.pop_front();
+    }
+    if (!tracked) {
       std::string session = s->name;
       publish_result(session.c_str(), static_cast<std::uint64_t>(frame.id), s->map_name, why);
       continue;

@@ -88,9 +88,14 @@ TEST_F(Service, MalformedFramesGetErrorResults) {
   client::Client c(options);
   std::mutex mutex;
   std::vector<std::string> errors;
+  client::StatusUpdate status_b;
   c.on_result([&](const client::ResultUpdate& r) {
     std::lock_guard<std::mutex> lock(mutex);
     if (!r.ok) errors.push_back(r.error);
+  });
+  c.on_status([&](const client::StatusUpdate& s) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (s.session == "b") status_b = s;
   });
   std::vector<std::uint8_t> rgb(32 * 24 * 3, 100);
   std::vector<std::uint16_t> depth(32 * 24, 2000);
@@ -118,6 +123,22 @@ TEST_F(Service, MalformedFramesGetErrorResults) {
     ASSERT_EQ(errors.size(), 2u);
     EXPECT_NE(errors[0].find("unknown session"), std::string::npos) << errors[0];
     EXPECT_NE(errors[1].find("intrinsics"), std::string::npos) << errors[1];
+  }
+  // The status topic (about once a second) reports the rejected frame with its reason.
+  for (int i = 0; i < 400; ++i) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (status_b.frames_received >= 1) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(status_b.frames_received, 1u);
+    EXPECT_EQ(status_b.frames_dropped, 1u);
+    EXPECT_EQ(status_b.frames_processed, 0u);
+    EXPECT_NE(status_b.last_drop_reason.find("intrinsics"), std::string::npos);
+    EXPECT_GT(status_b.resident_bytes, 0u);
   }
   EXPECT_TRUE(c.close_session("b", 30000, &why)) << why;
   EXPECT_FALSE(c.close_session("b", 5000, &why));

@@ -60,6 +60,15 @@ struct ResultUpdate {
   std::string error;
 };
 
+// A session's health as the server reports it at a fixed rate (best effort).
+struct StatusUpdate {
+  std::string session, map_name, last_drop_reason;
+  std::uint32_t queue_depth = 0;
+  std::uint64_t frames_received = 0, frames_processed = 0, frames_dropped = 0;
+  std::uint64_t map_gaussians = 0, resident_bytes = 0;
+  float track_ms_p50 = 0, track_ms_p99 = 0;
+};
+
 struct ClientOptions {
   std::string prefix = "fslam";        // topic prefix of the deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
@@ -87,6 +96,8 @@ class Client {
   // Called on the listener thread for results that no open/close call is waiting for (frame
   // errors and drops).
   void on_result(std::function<void(const ResultUpdate&)> callback);
+  // Called on the listener thread for every status report of any session.
+  void on_status(std::function<void(const StatusUpdate&)> callback);
   // Writers and readers matched so far (for waiting on discovery).
   std::uint32_t matched_servers() const;
 
@@ -95,11 +106,12 @@ class Client {
   bool control(const std::string& session, const std::string& map_name, bool open, int timeout_ms,
                std::string* why);
 
-  Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_;
-  Entity frame_writer_, pose_reader_, control_writer_, result_reader_, waitset_;
+  Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_, status_topic_;
+  Entity frame_writer_, pose_reader_, control_writer_, result_reader_, status_reader_, waitset_;
   std::mutex callback_mutex_;
   std::function<void(const PoseUpdate&)> pose_callback_;
   std::function<void(const ResultUpdate&)> result_callback_;
+  std::function<void(const StatusUpdate&)> status_callback_;
   std::condition_variable result_arrived_;
   std::map<std::uint64_t, ResultUpdate> awaited_;  // request id -> answer (filled when it comes)
   std::uint64_t next_request_ = 1ull << 62;  // apart from frame ids, which frame results echo

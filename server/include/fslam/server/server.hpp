@@ -25,6 +25,7 @@ struct ServerConfig {
   std::string prefix = "fslam";                 // topic prefix of this deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
   std::size_t queue_capacity = 64;              // frames waiting per session
+  int status_period_ms = 1000;                  // fslam/status, per session
   core::PipelineConfig pipeline;
   bool is_valid(std::string* why = nullptr) const;
 };
@@ -54,12 +55,14 @@ class Server {
   void publish_result(const char* client, std::uint64_t request_id, const std::string& map_name,
                       const std::string& error);
   void run_tracking(Session* session);
+  void publish_status();
   void finish_session(Session* session);
 
   ServerConfig config_;
   bool configured_ = false;
   client::Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_;
-  client::Entity frame_reader_, control_reader_, pose_writer_, result_writer_, waitset_;
+  client::Entity status_topic_, frame_reader_, control_reader_, pose_writer_, result_writer_;
+  client::Entity status_writer_, waitset_;
   std::thread ingest_thread_;
   std::atomic<bool> stop_{false};
   mutable std::mutex mutex_;
