@@ -1,54 +1,16 @@
 // `fslam-server`: runs the featureslam service until SIGINT or SIGTERM. The network profile comes
 // from CYCLONEDDS_URI (on these machines always configs/dds/loopback.xml).
-#include <csignal>
-#include <cstdio>
-#include <exception>
-#include <thread>
-
 #include <CLI/CLI.hpp>
 
+#include "fslam/server/serve_options.hpp"
 #include "fslam/server/server.hpp"
-
-namespace {
-volatile std::sig_atomic_t g_stop = 0;
-void on_signal(int) { g_stop = 1; }
-}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"featureslam server: SLAM sessions over Cyclone DDS"};
   fslam::server::ServerConfig config;
   int domain = -1;
-  app.add_option("--prefix", config.prefix, "Topic prefix")->capture_default_str();
-  app.add_option("--domain", domain, "DDS domain id (default: Cyclone's default)");
-  app.add_option("--queue", config.queue_capacity, "Frames queued per session before dropping")
-      ->capture_default_str();
+  fslam::server::add_server_options(&app, &config, &domain);
   CLI11_PARSE(app, argc, argv);
   if (domain >= 0) config.domain = static_cast<dds_domainid_t>(domain);
-  try {
-    fslam::server::Server server;
-    std::string why;
-    if (!server.configure(config, &why) || !server.activate(&why)) {
-      std::fprintf(stderr, "fslam-server: error: %s\n", why.c_str());
-      return 1;
-    }
-    std::signal(SIGINT, on_signal);
-    std::signal(SIGTERM, on_signal);
-    std::fprintf(stderr, "fslam-server: serving on prefix '%s', queue %zu frames per session\n",
-                 config.prefix.c_str(), config.queue_capacity);
-    while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    server.deactivate();
-    const auto stats = server.stats();
-    std::fprintf(stderr,
-                 "fslam-server: stopped; frames received %llu, rejected %llu, dropped %llu, poses "
-                 "%llu\n",
-                 static_cast<unsigned long long>(stats.frames_received),
-                 static_cast<unsigned long long>(stats.frames_rejected),
-                 static_cast<unsigned long long>(stats.frames_dropped),
-                 static_cast<unsigned long long>(stats.poses_published));
-    server.cleanup();
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "fslam-server: error: %s\n", e.what());
-    return 1;
-  }
-  return 0;
+  return fslam::server::serve_until_signal(config);
 }

@@ -71,4 +71,8 @@ class Server {
   ServerStats stats_;
 };
 
+// Runs a server until SIGINT or SIGTERM, reporting on stderr; returns the exit code. Shared by
+// `fslam-server` and `fslam serve`.
+int serve_until_signal(const ServerConfig& config);
+
 }  // namespace fslam::server
