@@ -273,13 +273,15 @@ void Server::finish_session(Session* s) {
 
 void Server::handle_frame(const fslam_proto_Frame& msg) {
   const std::string name = msg.session != nullptr ? msg.session : "";
+  // Decoding (PNG/JPEG) is the costly part: done before taking the server's lock.
   core::RgbdFrame frame;
-  std::string why;
+  std::string decode_why, why;
+  const bool decoded = decode_frame(msg, &frame, &decode_why);
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.frames_received;
   const auto it = sessions_.find(name);
   if (it == sessions_.end()) why = "unknown session '" + name + "' (open it first)";
-  else decode_frame(msg, &frame, &why);
+  else if (!decoded) why = decode_why;
   if (!why.empty()) {
     ++stats_.frames_rejected;
     const std::string message = "frame " + std::to_string(msg.frame_id) + ": " + why;

@@ -238,11 +238,7 @@ bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* 
     importance_[i] += grads_.importance_rgb[i] + grads_.importance_feature[i];
   }
   // Only the Gaussians this view sees are stepped: Adam's momentum must not drift the rest.
-  std::vector<std::uint8_t> visible(map_.size(), 0);
-  for (std::size_t i = 0; i < map_.size(); ++i) {
-    visible[i] = r.visible[i];
-    if (visible[i]) seen_[i] = 1;
-  }
+  for (std::size_t i = 0; i < map_.size(); ++i) seen_[i] |= r.visible[i];
   GaussianMap grad_map;
   grad_map.sh_degree = map_.sh_degree;
   grad_map.feature_dim = map_.feature_dim;
@@ -252,7 +248,7 @@ bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* 
   grad_map.opacity_logits = std::move(grads_.opacity_logits);
   grad_map.sh = std::move(grads_.sh);
   grad_map.features = std::move(grads_.features);
-  step_gaussian_adam(&adam_, &map_, grad_map, &visible);
+  step_gaussian_adam(&adam_, &map_, grad_map, &r.visible);
   ++step_;
   if (losses != nullptr) *losses = l;
   return true;

@@ -24,7 +24,6 @@ void GaussianGradients::reset(const GaussianMap& map) {
   features.assign(n * static_cast<std::size_t>(map.feature_dim), 0.0f);
   importance_rgb.assign(n, 0.0f);
   importance_feature.assign(n, 0.0f);
-  mean2d_abs.assign(n, 0.0f);
 }
 
 namespace {
@@ -127,7 +126,6 @@ class CpuRasterizer final : public Rasterizer {
     g.features = D > 0 ? grads->features.data() : nullptr;
     g.importance_rgb = grads->importance_rgb.data();
     g.importance_feature = grads->importance_feature.data();
-    g.mean2d_abs = grads->mean2d_abs.data();
     render_impl::rasterize_backward(render_impl::splat_scene(map), cam, settings.background.data(), D > 0, st, out,
                                     gout, g);
     return true;

@@ -334,7 +334,7 @@ TEST(Rasterizer, ImportanceIsAbsoluteAlphaGradient) {
   go.features = gfeat.data();
   std::vector<double> means(9), rot(12), ls(9), op(3), sh(9), feat(6), imp_rgb(3), imp_feat(3);
   SceneGrads<double> g{means.data(), rot.data(), ls.data(), op.data(), sh.data(), feat.data(),
-                       imp_rgb.data(), imp_feat.data(), nullptr};
+                       imp_rgb.data(), imp_feat.data()};
   render_impl::rasterize_backward(scene.view(), cam, kBackground, true, st, im.outputs(), go, g);
   for (std::size_t i = 0; i < 3; ++i) {
     const auto& pg = st.projected[i];

@@ -20,7 +20,6 @@
 namespace fslam::core::render_impl {
 
 constexpr int kTileSize = 16;                  // pixels per tile side
-constexpr int kCheckpointInterval = 32;        // P of eq. transmittance_ckpt, splats per block
 
 // Read-only view of a map's parameters (shapes as in GaussianMap).
 template <typename T>
@@ -72,7 +71,6 @@ struct SceneGrads {
   T* features = nullptr;
   T* importance_rgb = nullptr;      // [N] sum over pixels of |dL_rgb / dalpha_i(x)| (eq. importance)
   T* importance_feature = nullptr;  // [N] the same for the feature loss (eq. sem_importance)
-  T* mean2d_abs = nullptr;          // [N] |dL/d(u, v)| summed over pixels (densification cue)
 };
 
 // What the backward pass needs from the forward pass.
@@ -290,7 +288,7 @@ constexpr int kGrad2dFixed = 14;
 
 // Backward pass. Each tile is processed splat by splat (outer loop) over its pixels (inner loop),
 // rolling each pixel's transmittance and prefix sums forward: the state at the start of every
-// block of kCheckpointInterval splats is the checkpoint T*_{kP} of eq. transmittance_ckpt, and
+// block of P splats is the checkpoint T*_{kP} of eq. transmittance_ckpt, and
 // T_i is recovered from it as in eq. transmittance_recover. Gradients go to the worker thread's
 // own buffer (no atomics, no locks) and the buffers are reduced once at the end.
 template <typename T>
@@ -311,7 +309,7 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
     constexpr int kPixels = kTileSize * kTileSize;
     std::vector<T> trans(kPixels), prefix(static_cast<std::size_t>(kPixels) * channels);
     std::vector<T> total(static_cast<std::size_t>(kPixels) * channels);
-    std::vector<T> splat_grad(stride);
+    std::vector<T> feature_grad(static_cast<std::size_t>(D));  // one splat's dL/df
     for (int t = r.begin(); t != r.end(); ++t) {
       const int tx = t % st.tiles_x, ty = t / st.tiles_x;
       const std::uint32_t begin = st.tile_offsets[t], end = st.tile_offsets[t + 1];
@@ -340,7 +338,7 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
                            : nullptr;
         math::ProjectedGradient<T> pg{};
         T imp_rgb = T(0), imp_feat = T(0);
-        std::fill(splat_grad.begin() + kGrad2dFixed, splat_grad.end(), T(0));
+        std::fill(feature_grad.begin(), feature_grad.end(), T(0));
         bool touched = false;
         const int gy0 = std::max(0, static_cast<int>(std::ceil(g.v - g.extent[1])) - y0);
         const int gy1 = std::min(th, static_cast<int>(std::floor(g.v + g.extent[1])) + 1 - y0);
@@ -394,7 +392,7 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
               for (int c = 0; c < D; ++c) {
                 const T gf = grad_out.features[c * plane + pix];
                 const T after = pre[4 + c] + w * f[c];
-                splat_grad[kGrad2dFixed + c] += w * gf;
+                feature_grad[c] += w * gf;
                 g_alpha_feat += gf * (Ti * f[c] - (tot[4 + c] - after) / one_minus);
               }
             }
@@ -425,7 +423,7 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
         a[11] += pg.colour[2];
         a[12] += imp_rgb;
         a[13] += imp_feat;
-        for (int c = 0; c < D; ++c) a[kGrad2dFixed + c] += splat_grad[kGrad2dFixed + c];
+        for (int c = 0; c < D; ++c) a[kGrad2dFixed + c] += feature_grad[c];
       }
     }
   });
@@ -474,7 +472,6 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
           grads.features[i * scene.feature_dim + c] += sum[kGrad2dFixed + c];
       if (grads.importance_rgb != nullptr) grads.importance_rgb[i] += sum[12];
       if (grads.importance_feature != nullptr) grads.importance_feature[i] += sum[13];
-      if (grads.mean2d_abs != nullptr) grads.mean2d_abs[i] += std::sqrt(sum[0] * sum[0] + sum[1] * sum[1]);
     }
   });
 }

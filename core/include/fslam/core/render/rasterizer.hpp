@@ -56,12 +56,11 @@ struct RenderGradients {
   PlanarImage colour, depth, median_depth, alpha, features;
 };
 
-// dL/d(parameters), the shapes of GaussianMap, plus the pruning and densification cues.
+// dL/d(parameters), the shapes of GaussianMap, plus the pruning cues.
 struct GaussianGradients {
   std::vector<float> means, rotations, log_scales, opacity_logits, sh, features;
   std::vector<float> importance_rgb;      // [N] sum_x |dL_rgb / dalpha_i(x)| (eq. importance)
   std::vector<float> importance_feature;  // [N] sum_x |dL_feat / dalpha_i(x)| (eq. sem_importance)
-  std::vector<float> mean2d_abs;          // [N] |dL/d(2D mean)| of this view
 
   // Zeroed arrays sized for `map`.
   void reset(const GaussianMap& map);
