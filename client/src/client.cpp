@@ -1,9 +1,12 @@
 #include "fslam/client/client.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <vector>
+
+#include <unistd.h>
 
 #include <opencv2/core/mat.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -56,7 +59,54 @@ fslam_proto_ImageEncoding wire(PayloadEncoding e) {
 
 }  // namespace
 
-Client::Client(const ClientOptions& options) {
+// What a waiting call gets from the listener thread.
+struct Client::Answer {
+  bool arrived = false;
+  ResultUpdate result;
+  RenderOutput render;
+  std::string path;
+};
+
+namespace {
+
+std::string make_client_id() {
+  static std::atomic<int> instances{0};
+  char host[128] = "host";
+  gethostname(host, sizeof host - 1);
+  return std::string(host) + "/" + std::to_string(getpid()) + "/" + std::to_string(instances++);
+}
+
+// A result image as tightly packed rows (PNG payloads decoded, colour back to RGB).
+bool decode_result_image(const fslam_proto_Image& in, RenderedImage* out) {
+  out->width = in.width;
+  out->height = in.height;
+  out->channels = in.channels;
+  out->bytes_per_channel = in.bytes_per_channel;
+  if (in.data._buffer == nullptr) return false;
+  if (in.encoding == fslam_proto_ENCODING_RAW) {
+    out->pixels.assign(in.data._buffer, in.data._buffer + in.data._length);
+    return out->pixels.size() ==
+           static_cast<std::size_t>(in.width) * in.height * in.channels * in.bytes_per_channel;
+  }
+  const std::vector<std::uint8_t> bytes(in.data._buffer, in.data._buffer + in.data._length);
+  cv::Mat image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+  if (image.empty() || image.cols != static_cast<int>(in.width) ||
+      image.rows != static_cast<int>(in.height) || image.channels() != in.channels ||
+      static_cast<int>(image.elemSize1()) != in.bytes_per_channel) {
+    return false;
+  }
+  if (image.channels() == 3) cv::cvtColor(image, image, cv::COLOR_BGR2RGB);
+  out->pixels.assign(image.data, image.data + image.total() * image.elemSize());
+  return true;
+}
+
+CameraIntrinsics from_wire(const fslam_proto_Intrinsics& k) {
+  return {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
+}
+
+}  // namespace
+
+Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   participant_ = make_participant(options.domain);
   dds_qos_t* qos = reliable_qos();
   frames_topic_ = Entity(check_dds(
@@ -75,6 +125,12 @@ Client::Client(const ClientOptions& options) {
       dds_create_topic(participant_.get(), &fslam_proto_Result_desc,
                        topic_name(options.prefix, "results").c_str(), qos, nullptr),
       "create topic results"));
+  requests_topic_ = Entity(check_dds(
+      dds_create_topic(participant_.get(), &fslam_proto_Request_desc,
+                       topic_name(options.prefix, "requests").c_str(), qos, nullptr),
+      "create topic requests"));
+  request_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), requests_topic_.get(), qos, nullptr),
+                                     "create request writer"));
   frame_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), frames_topic_.get(), qos, nullptr),
                                    "create frame writer"));
   control_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), control_topic_.get(), qos, nullptr),
@@ -98,6 +154,7 @@ Client::Client(const ClientOptions& options) {
     check_dds(dds_set_status_mask(reader->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
     check_dds(dds_waitset_attach(waitset_.get(), reader->get(), reader->get()), "attach");
   }
+  addresses_.insert(id_);
   listener_ = std::thread([this] { listen(); });
 }
 
@@ -124,49 +181,138 @@ void Client::on_status(std::function<void(const StatusUpdate&)> callback) {
 
 bool Client::open_session(const std::string& session, const std::string& map_name, int timeout_ms,
                           std::string* why) {
-  return control(session, map_name, true, timeout_ms, why);
+  return control(session, map_name, true, false, timeout_ms, why);
 }
 
 bool Client::close_session(const std::string& session, int timeout_ms, std::string* why) {
-  return control(session, "", false, timeout_ms, why);
+  return control(session, "", false, false, timeout_ms, why);
+}
+
+bool Client::attach_map(const std::string& map_name, int timeout_ms, std::string* why) {
+  if (map_name.empty()) return fail(why, "attach: no map name");
+  return control(id_, map_name, true, true, timeout_ms, why);
+}
+
+std::uint64_t Client::new_request_id() {
+  std::lock_guard<std::mutex> lock(callback_mutex_);
+  return next_request_++;
 }
 
 bool Client::control(const std::string& session, const std::string& map_name, bool open,
-                     int timeout_ms, std::string* why) {
+                     bool attach_only, int timeout_ms, std::string* why) {
   if (session.empty()) return fail(why, "session control: no session name");
-  std::uint64_t id = 0;
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
-    id = next_request_++;
-    awaited_[id] = ResultUpdate{};
-    awaited_[id].request_id = 0;  // 0 marks "not answered yet"
+    addresses_.insert(session);
   }
   fslam_proto_SessionControl msg{};
   std::string s = session, m = map_name;
   msg.session = s.data();
-  msg.request_id = id;
+  msg.request_id = new_request_id();
   msg.command = open ? fslam_proto_SESSION_OPEN : fslam_proto_SESSION_CLOSE;
   msg.map_name = m.data();
-  msg.attach_only = false;
-  // Wait for discovery (a server's session reader), then send once and wait for the answer.
+  msg.attach_only = attach_only;
+  const std::string what = attach_only ? "attach to map '" + map_name + "'"
+                                       : std::string(open ? "open" : "close") + " session '" + session + "'";
+  Answer answer;
+  return call(control_writer_.get(), &msg, session, msg.request_id, what, timeout_ms, &answer, why);
+}
+
+bool Client::call(dds_entity_t writer, const void* sample, const std::string& client,
+                  std::uint64_t id, const std::string& what, int timeout_ms, Answer* answer,
+                  std::string* why) {
+  const auto key = std::make_pair(client, id);
+  {
+    std::lock_guard<std::mutex> lock(callback_mutex_);
+    awaited_[key] = std::make_unique<Answer>();
+  }
+  // Wait for discovery (a server's reader), then send once and wait for the answer.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
   dds_publication_matched_status_t matched{};
   for (;;) {
-    dds_get_publication_matched_status(control_writer_.get(), &matched);
+    dds_get_publication_matched_status(writer, &matched);
     if (matched.current_count > 0 || std::chrono::steady_clock::now() >= deadline) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
+  const bool sent = matched.current_count > 0 && dds_write(writer, sample) == DDS_RETCODE_OK;
   std::unique_lock<std::mutex> lock(callback_mutex_);
-  if (matched.current_count == 0 || dds_write(control_writer_.get(), &msg) != DDS_RETCODE_OK ||
-      !result_arrived_.wait_until(lock, deadline, [&] { return awaited_[id].request_id != 0; })) {
-    awaited_.erase(id);
-    return fail(why, std::string(open ? "open" : "close") + " session '" + session +
-                         "': no answer from a server within " + std::to_string(timeout_ms) + " ms");
+  const bool arrived = sent && result_arrived_.wait_until(lock, deadline, [&] { return awaited_[key]->arrived; });
+  std::unique_ptr<Answer> got = std::move(awaited_[key]);
+  awaited_.erase(key);
+  if (!arrived) {
+    return fail(why, what + ": no answer from a server within " + std::to_string(timeout_ms) + " ms");
   }
-  const ResultUpdate answer = awaited_[id];
-  awaited_.erase(id);
-  if (!answer.ok) return fail(why, answer.error);
+  *answer = std::move(*got);
+  if (!answer->result.ok) return fail(why, what + ": " + answer->result.error);
   return true;
+}
+
+bool Client::render(const RenderQuery& query, RenderOutput* output, int timeout_ms, std::string* why) {
+  if (query.map_name.empty()) return fail(why, "render: no map name");
+  fslam_proto_Request msg{};
+  std::string client = id_, map = query.map_name, empty;
+  msg.client = client.data();
+  msg.request_id = new_request_id();
+  msg.map_name = map.data();
+  msg.kind = fslam_proto_REQUEST_RENDER;
+  msg.path = empty.data();
+  fslam_proto_RenderRequest& r = msg.render;
+  for (int k = 0; k < 3; ++k) r.T_world_camera.translation[k] = query.translation[k];
+  for (int k = 0; k < 4; ++k) r.T_world_camera.rotation[k] = query.rotation[k];
+  const CameraIntrinsics& k = query.intrinsics;
+  r.intrinsics = {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
+  r.channels = query.channels;
+  r.depth_scale = query.depth_scale;
+  r.from_frame = query.from_frame;
+  r.frame_id = query.frame_id;
+  Answer answer;
+  if (!call(request_writer_.get(), &msg, id_, msg.request_id, "render map '" + map + "'",
+            timeout_ms, &answer, why)) {
+    return false;
+  }
+  *output = std::move(answer.render);
+  // Images come in channel bit order (docs/protocol.md): give each its bit.
+  std::size_t next = 0;
+  for (std::uint32_t bit = 1; bit <= kOpacity; bit <<= 1) {
+    if ((query.channels & bit) != 0 && next < output->images.size()) output->images[next++].channel = bit;
+  }
+  if (next != output->images.size() || next == 0) {
+    return fail(why, "render map '" + map + "': the server sent " +
+                         std::to_string(output->images.size()) + " images for the channels asked");
+  }
+  return true;
+}
+
+bool Client::save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
+                      std::string* saved_to, std::string* why) {
+  fslam_proto_Request msg{};
+  std::string client = id_, map = map_name, path = folder;
+  msg.client = client.data();
+  msg.request_id = new_request_id();
+  msg.map_name = map.data();
+  msg.kind = fslam_proto_REQUEST_SAVE_MAP;
+  msg.path = path.data();
+  Answer answer;
+  if (!call(request_writer_.get(), &msg, id_, msg.request_id, "save map '" + map + "'", timeout_ms,
+            &answer, why)) {
+    return false;
+  }
+  if (saved_to) *saved_to = answer.path;
+  return true;
+}
+
+bool Client::load_map(const std::string& map_name, const std::string& folder, int timeout_ms,
+                      std::string* why) {
+  fslam_proto_Request msg{};
+  std::string client = id_, map = map_name, path = folder;
+  msg.client = client.data();
+  msg.request_id = new_request_id();
+  msg.map_name = map.data();
+  msg.kind = fslam_proto_REQUEST_LOAD_MAP;
+  msg.path = path.data();
+  Answer answer;
+  return call(request_writer_.get(), &msg, id_, msg.request_id, "load map '" + map + "'", timeout_ms,
+              &answer, why);
 }
 
 std::uint32_t Client::matched_servers() const {
@@ -192,6 +338,9 @@ void Client::listen() {
       update.resident_bytes = st.resident_bytes;
       update.track_ms_p50 = st.track_ms_p50;
       update.track_ms_p99 = st.track_ms_p99;
+      update.streaming = st.streaming;
+      update.map_version = st.map_version;
+      update.frames_tracked = st.frames_tracked;
       std::lock_guard<std::mutex> lock(callback_mutex_);
       if (status_callback_) status_callback_(update);
     });
@@ -203,11 +352,28 @@ void Client::listen() {
       update.ok = r.status == fslam_proto_RESULT_OK;
       update.error = r.error ? r.error : "";
       std::lock_guard<std::mutex> lock(callback_mutex_);
-      const auto waiting = awaited_.find(update.request_id);
-      if (waiting != awaited_.end() && waiting->second.request_id == 0) {
-        waiting->second = update;
+      const auto waiting = awaited_.find({update.client, update.request_id});
+      if (waiting != awaited_.end() && waiting->second && !waiting->second->arrived) {
+        Answer& answer = *waiting->second;
+        answer.path = r.path ? r.path : "";
+        RenderOutput& out = answer.render;
+        for (std::uint32_t i = 0; i < r.images._length && update.ok; ++i) {
+          RenderedImage image;
+          if (!decode_result_image(r.images._buffer[i], &image)) {
+            update.ok = false;
+            update.error = "result image " + std::to_string(i) + " could not be decoded";
+          }
+          out.images.push_back(std::move(image));
+        }
+        for (int k = 0; k < 3; ++k) out.translation[k] = r.T_world_camera.translation[k];
+        for (int k = 0; k < 4; ++k) out.rotation[k] = r.T_world_camera.rotation[k];
+        out.intrinsics = from_wire(r.intrinsics);
+        out.map_version = r.map_version;
+        out.map_gaussians = r.map_gaussians;
+        answer.result = update;
+        answer.arrived = true;
         result_arrived_.notify_all();
-      } else if (result_callback_) {
+      } else if (result_callback_ && addresses_.count(update.client) != 0) {
         result_callback_(update);
       }
     });
@@ -220,6 +386,9 @@ void Client::listen() {
       for (int k = 0; k < 4; ++k) update.rotation[k] = p.T_world_camera.rotation[k];
       update.state = static_cast<int>(p.state);
       update.keyframe = p.keyframe;
+      update.decode_ms = p.decode_ms;
+      update.queue_ms = p.queue_ms;
+      update.track_ms = p.track_ms;
       std::lock_guard<std::mutex> lock(callback_mutex_);
       if (pose_callback_) pose_callback_(update);
     });
@@ -229,6 +398,10 @@ void Client::listen() {
 bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why) {
   const CameraIntrinsics& k = frame.intrinsics;
   if (session.empty()) return fail(why, "push_frame: no session name");
+  {
+    std::lock_guard<std::mutex> lock(callback_mutex_);
+    if (addresses_.count(session) == 0) addresses_.insert(session);
+  }
   if (!(k.fx > 0 && k.fy > 0 && std::isfinite(k.fx) && std::isfinite(k.fy) && std::isfinite(k.cx) &&
         std::isfinite(k.cy)) ||
       k.width == 0 || k.height == 0) {

@@ -1,6 +1,7 @@
-// `fslam render`: renders a saved map (map.ply) from a pose: colour, depth, normals and opacity
-// side by side in one PNG. The pose is given directly, or as the ground-truth or tracked pose of
-// a dataset frame.
+// `fslam render`: colour, depth, normals and opacity side by side in one PNG, from a pose.
+// Two sources: a map a running server serves (--map NAME; --frame N is then the server's tracked
+// pose of frame N), or a saved map.ply rendered in-process (--ply; --frame N is the ground-truth
+// or --trajectory pose of dataset frame N).
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -10,23 +11,29 @@
 
 #include <CLI/CLI.hpp>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 #include <tbb/global_control.h>
 
+#include "client_args.hpp"
 #include "commands.hpp"
 #include "dataset_args.hpp"
+#include "fslam/client/client.hpp"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/image_io.hpp"
 #include "fslam/core/io/text_tables.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/server/backend_factory.hpp"
-#include "render_images.hpp"
+#include "fslam/server/render_images.hpp"
 
 namespace fslam::cli {
 namespace {
 
 struct RenderArgs {
   std::string ply;
+  std::string map;
+  ClientArgs client;
+  std::string camera;      // fx,fy,cx,cy,width,height for --map (default: the map's camera)
   DatasetArgs dataset;
   std::string pose;        // tx,ty,tz,qx,qy,qz,qw (camera-to-world)
   long long frame = -1;    // a dataset frame position
@@ -38,39 +45,104 @@ struct RenderArgs {
 };
 
 bool parse_pose(const std::string& text, Eigen::Isometry3d* T, std::string* why) {
-  std::vector<double> v;
+  double t[3], q[4];
+  if (!parse_pose_text(text, t, q, why)) return false;
+  T->setIdentity();
+  T->linear() = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).toRotationMatrix();
+  T->translation() = Eigen::Vector3d(t[0], t[1], t[2]);
+  return true;
+}
+
+// The channel names of --channels as render bits, in the order given.
+bool parse_channels(const std::string& text, std::vector<std::uint32_t>* bits, std::string* why) {
   std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    double x = 0;
-    if (!core::parse_double(item, &x) || !std::isfinite(x)) {
-      *why = "--pose: '" + item + "' is not a number";
+  std::string channel;
+  while (std::getline(ss, channel, ',')) {
+    if (channel == "colour" || channel == "color") bits->push_back(client::kColour);
+    else if (channel == "depth") bits->push_back(client::kDepth);
+    else if (channel == "normals") bits->push_back(client::kNormals);
+    else if (channel == "opacity") bits->push_back(client::kOpacity);
+    else {
+      *why = "--channels: unknown channel '" + channel + "' (colour, depth, normals, opacity)";
       return false;
     }
-    v.push_back(x);
   }
-  if (v.size() != 7) {
-    *why = "--pose expects tx,ty,tz,qx,qy,qz,qw (7 numbers), got " + std::to_string(v.size());
-    return false;
+  if (bits->empty()) *why = "--channels: nothing to render";
+  return !bits->empty();
+}
+
+// A render from a running server: the panels are the server's images (depth shown in colour).
+int render_from_server(const RenderArgs& args, const std::vector<std::uint32_t>& bits) {
+  std::string why;
+  client::RenderQuery query;
+  query.map_name = args.map;
+  if (!args.pose.empty()) {
+    if (!parse_pose_text(args.pose, query.translation, query.rotation, &why)) return fail(why);
+  } else {
+    query.from_frame = true;
+    query.frame_id = static_cast<std::uint64_t>(args.frame);
   }
-  const Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
-  if (std::abs(q.norm() - 1.0) > 1e-3) {
-    *why = "--pose: the quaternion is not unit length";
-    return false;
+  if (!args.camera.empty()) {
+    std::vector<double> v;
+    std::stringstream ss(args.camera);
+    std::string item;
+    double x = 0;
+    while (std::getline(ss, item, ',')) {
+      if (!core::parse_double(item, &x)) return fail("--camera: '" + item + "' is not a number");
+      v.push_back(x);
+    }
+    if (v.size() != 6) return fail("--camera expects fx,fy,cx,cy,width,height");
+    query.intrinsics = {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2]),
+                        static_cast<float>(v[3]), static_cast<std::uint32_t>(v[4]),
+                        static_cast<std::uint32_t>(v[5])};
   }
-  T->setIdentity();
-  T->linear() = q.normalized().toRotationMatrix();
-  T->translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-  return true;
+  query.channels = 0;
+  for (std::uint32_t bit : bits) query.channels |= bit;
+  query.depth_scale = 1000.0f;
+  client::Client client(args.client.options());
+  client::RenderOutput out;
+  if (!client.render(query, &out, args.client.timeout_ms(), &why)) return fail(why);
+  std::vector<cv::Mat> panels;
+  for (std::uint32_t bit : bits) {
+    for (client::RenderedImage& image : out.images) {
+      if (image.channel != bit) continue;
+      const int h = static_cast<int>(image.height), w = static_cast<int>(image.width);
+      if (bit == client::kDepth) {
+        cv::Mat metres;
+        cv::Mat(h, w, CV_16UC1, image.pixels.data()).convertTo(metres, CV_32FC1, 1.0 / query.depth_scale);
+        panels.push_back(server::depth_to_rgb8(metres, args.max_depth));
+      } else if (bit == client::kOpacity) {
+        cv::Mat rgb;
+        cv::cvtColor(cv::Mat(h, w, CV_8UC1, image.pixels.data()), rgb, cv::COLOR_GRAY2RGB);
+        panels.push_back(rgb);
+      } else {
+        panels.push_back(cv::Mat(h, w, CV_8UC3, image.pixels.data()).clone());
+      }
+    }
+  }
+  cv::Mat image;
+  cv::hconcat(panels, image);
+  if (!core::write_image(args.out, image, &why)) return fail(why);
+  std::printf("rendered map '%s' (version %llu, %llu Gaussians) at %ux%u from (%.3f, %.3f, %.3f) -> %s\n",
+              args.map.c_str(), static_cast<unsigned long long>(out.map_version),
+              static_cast<unsigned long long>(out.map_gaussians), out.intrinsics.width,
+              out.intrinsics.height, out.translation[0], out.translation[1], out.translation[2],
+              args.out.c_str());
+  return 0;
 }
 
 int run_render(const RenderArgs& args) {
   std::string why;
+  std::vector<std::uint32_t> bits;
+  if (!parse_channels(args.channels, &bits, &why)) return fail(why);
+  if (args.ply.empty() == args.map.empty()) return fail("give exactly one of --map and --ply");
+  if (args.pose.empty() == (args.frame < 0)) return fail("give exactly one of --pose and --frame");
+  if (!args.map.empty()) return render_from_server(args, bits);
+  if (args.dataset.path.empty()) return fail("--ply needs --dataset (for the camera)");
   core::DatasetOptions options;
   if (!args.dataset.to_options(&options, &why)) return fail(why);
   auto dataset = core::open_dataset(args.dataset.path, options, &why);
   if (!dataset) return fail(why);
-  if (args.pose.empty() == (args.frame < 0)) return fail("give exactly one of --pose and --frame");
   Eigen::Isometry3d T_world_camera;
   if (!args.pose.empty()) {
     if (!parse_pose(args.pose, &T_world_camera, &why)) return fail(why);
@@ -114,23 +186,12 @@ int run_render(const RenderArgs& args) {
   if (!rasterizer->forward(map, view, settings, &r, &why)) return fail(why);
 
   std::vector<cv::Mat> panels;
-  std::stringstream ss(args.channels);
-  std::string channel;
-  while (std::getline(ss, channel, ',')) {
-    if (channel == "colour" || channel == "color") {
-      panels.push_back(colour_to_rgb8(r.colour));
-    } else if (channel == "depth") {
-      panels.push_back(depth_to_rgb8(plane_to_mat(r.median_depth, 0), args.max_depth));
-    } else if (channel == "normals") {
-      panels.push_back(normals_to_rgb8(r.median_depth, view.camera.intrinsics()));
-    } else if (channel == "opacity") {
-      panels.push_back(opacity_to_rgb8(r.alpha));
-    } else {
-      return fail("--channels: unknown channel '" + channel +
-                  "' (colour, depth, normals, opacity)");
-    }
+  for (std::uint32_t bit : bits) {
+    if (bit == client::kColour) panels.push_back(server::colour_to_rgb8(r.colour));
+    if (bit == client::kDepth) panels.push_back(server::depth_to_rgb8(server::plane_to_mat(r.median_depth, 0), args.max_depth));
+    if (bit == client::kNormals) panels.push_back(server::normals_to_rgb8(r.median_depth, view.camera.intrinsics()));
+    if (bit == client::kOpacity) panels.push_back(server::opacity_to_rgb8(r.alpha));
   }
-  if (panels.empty()) return fail("--channels: nothing to render");
   cv::Mat image;
   cv::hconcat(panels, image);
   if (!core::write_image(args.out, image, &why)) return fail(why);
@@ -143,13 +204,18 @@ int run_render(const RenderArgs& args) {
 
 void add_render_command(CLI::App& root, CommandList* commands) {
   auto* app = root.add_subcommand(
-      "render", "Render a saved map (map.ply) from a pose or a dataset frame's pose; channels "
-                "side by side in one PNG");
+      "render", "Render a served map (--map) or a saved map.ply (--ply) from a pose or a frame's "
+                "pose; channels side by side in one PNG");
   auto args = std::make_shared<RenderArgs>();
-  app->add_option("--ply", args->ply, "The map (3DGS PLY, e.g. fslam run's map.ply)")->required();
-  add_dataset_options(app, &args->dataset);
+  app->add_option("--map", args->map, "A map the running server serves");
+  app->add_option("--camera", args->camera,
+                  "With --map: fx,fy,cx,cy,width,height (default: the camera the map was built with)");
+  add_client_options(app, &args->client);
+  app->add_option("--ply", args->ply, "A saved map (3DGS PLY, e.g. fslam run's map.ply), with --dataset");
+  add_dataset_options(app, &args->dataset, false);
   app->add_option("--pose", args->pose, "Camera-to-world pose tx,ty,tz,qx,qy,qz,qw");
-  app->add_option("--frame", args->frame, "Render from this dataset frame's pose");
+  app->add_option("--frame", args->frame,
+                  "Render from frame N's pose: tracked by the server (--map), or the dataset's (--ply)");
   app->add_option("--trajectory", args->trajectory,
                   "With --frame: the tracked pose from this TUM trajectory (default: ground truth)");
   app->add_option("--channels", args->channels, "colour,depth,normals,opacity (any order)")

@@ -26,7 +26,7 @@
 
 #include "commands.hpp"
 #include "dataset_args.hpp"
-#include "render_images.hpp"
+#include "fslam/server/render_images.hpp"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/error.hpp"
 #include "fslam/core/eval/ate.hpp"
@@ -356,11 +356,11 @@ int run_slam(const RunArgs& args) {
     view.T_camera_world = (args.gt_poses ? eval_poses[k] : trajectory[k].T_world_camera).inverse();
     core::RenderResult rendered;
     if (!rasterizer->forward(map, view, settings, &rendered, &why)) return fail(why);
-    cv::Mat rgb = colour_to_rgb8(rendered.colour);
+    cv::Mat rgb = server::colour_to_rgb8(rendered.colour);
     core::ImageMetricsConfig mc;
     double psnr = 0, ssim = 0;
     core::DepthL1Result depth;
-    const cv::Mat median = plane_to_mat(rendered.median_depth, 0);
+    const cv::Mat median = server::plane_to_mat(rendered.median_depth, 0);
     if (!core::compute_psnr(rgb, frame.colour, mc, &psnr, &why) ||
         !core::compute_ssim(rgb, frame.colour, mc, &ssim, &why) ||
         !core::compute_depth_l1(median, frame.depth, cv::Mat(), &depth, &why)) {
@@ -373,11 +373,11 @@ int run_slam(const RunArgs& args) {
     set.depth_missing.push_back(static_cast<double>(depth.missing_rendered) /
                                 static_cast<double>(std::max<std::size_t>(1, depth.valid_pixels)));
     if (std::find(render_frames.begin(), render_frames.end(), k) != render_frames.end()) {
-      const cv::Mat nrm = normals_to_rgb8(rendered.median_depth, frame.camera.intrinsics());
+      const cv::Mat nrm = server::normals_to_rgb8(rendered.median_depth, frame.camera.intrinsics());
       const double max_depth = 5.0;
       cv::Mat top, bottom, panel;
       cv::hconcat(frame.colour, rgb, top);
-      cv::hconcat(depth_to_rgb8(frame.depth, max_depth), depth_to_rgb8(median, max_depth), bottom);
+      cv::hconcat(server::depth_to_rgb8(frame.depth, max_depth), server::depth_to_rgb8(median, max_depth), bottom);
       cv::Mat blank(frame.colour.rows, frame.colour.cols, CV_8UC3, cv::Scalar(0, 0, 0));
       cv::Mat third;
       cv::hconcat(blank, nrm, third);

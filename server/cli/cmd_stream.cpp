@@ -1,5 +1,6 @@
 // `fslam stream`: plays a dataset to a running fslam-server, writes the poses it sends back as a
 // TUM trajectory and prints ATE when the dataset has ground truth.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -33,6 +34,35 @@ struct StreamArgs {
   int timeout_s = 60;        // for the last poses after the last frame
 };
 
+// Frame-to-pose latency as the client sees it (push_frame called -> pose received, one clock)
+// and where the server says its share went; the rest is encoding, transport and publishing.
+void print_latency(const std::map<std::uint64_t, std::chrono::steady_clock::time_point>& sent,
+                   const std::map<std::uint64_t, std::chrono::steady_clock::time_point>& arrived,
+                   const std::map<std::uint64_t, client::PoseUpdate>& poses) {
+  std::vector<double> total, decode, queue, track, rest;
+  for (const auto& [id, t] : arrived) {
+    const auto s = sent.find(id);
+    if (s == sent.end()) continue;
+    const client::PoseUpdate& p = poses.at(id);
+    const double ms = std::chrono::duration<double, std::milli>(t - s->second).count();
+    total.push_back(ms);
+    decode.push_back(p.decode_ms);
+    queue.push_back(p.queue_ms);
+    track.push_back(p.track_ms);
+    rest.push_back(ms - p.decode_ms - p.queue_ms - p.track_ms);
+  }
+  if (total.empty()) return;
+  auto row = [](const char* name, const std::vector<double>& v) {
+    std::printf("  %-34s %8.2f %8.2f\n", name, percentile(v, 0.5), percentile(v, 0.99));
+  };
+  std::printf("latency per frame, ms (%zu frames)      p50      p99\n", total.size());
+  row("frame -> pose (client clock)", total);
+  row("  server: decode", decode);
+  row("  server: queue", queue);
+  row("  server: track", track);
+  row("  encode + transport + publish", rest);
+}
+
 int run_stream(const StreamArgs& args) {
   core::DatasetOptions options;
   std::string why;
@@ -53,11 +83,14 @@ int run_stream(const StreamArgs& args) {
   client::Client client(copts);
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> poses;
+  std::map<std::uint64_t, std::chrono::steady_clock::time_point> sent, arrived;
   std::atomic<std::size_t> errors{0};
   client.on_pose([&](const client::PoseUpdate& p) {
     if (p.session != args.session) return;
+    const auto now = std::chrono::steady_clock::now();
     std::lock_guard<std::mutex> lock(mutex);
     poses[p.frame_id] = p;
+    arrived[p.frame_id] = now;
   });
   client.on_result([&](const client::ResultUpdate& r) {
     if (!r.ok) {
@@ -85,7 +118,7 @@ int run_stream(const StreamArgs& args) {
     cv::Mat depth_raw;
     frame.depth.convertTo(depth_raw, CV_16UC1, dataset->depth_scale());
     client::FrameInput input;
-    input.frame_id = i;
+    input.frame_id = static_cast<std::uint64_t>(std::max<std::int64_t>(0, frame.id));  // the dataset's number
     input.timestamp = frame.timestamp;
     timestamps[i] = frame.timestamp;
     input.intrinsics = {static_cast<float>(frame.camera.fx), static_cast<float>(frame.camera.fy),
@@ -104,6 +137,10 @@ int run_stream(const StreamArgs& args) {
       input.gt_rotation[2] = q.z();
       input.gt_rotation[3] = q.w();
     }
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      sent[input.frame_id] = std::chrono::steady_clock::now();  // before encoding: latency includes it
+    }
     if (!client.push_frame(args.session, input, &why)) return fail(why);
     progress.update(i + 1);
   }
@@ -119,7 +156,15 @@ int run_stream(const StreamArgs& args) {
     if (have + errors.load() >= n || std::chrono::steady_clock::now() > deadline) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
-  if (!client.close_session(args.session, 30000, &why)) std::fprintf(stderr, "close: %s\n", why.c_str());
+  auto last_pose = start;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& [id, t] : arrived) last_pose = std::max(last_pose, t);
+  }
+  // Closing waits for the server to finish mapping what it accepted.
+  if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why)) {
+    std::fprintf(stderr, "close: %s\n", why.c_str());
+  }
   core::Trajectory trajectory;
   {
     std::lock_guard<std::mutex> lock(mutex);
@@ -132,9 +177,11 @@ int run_stream(const StreamArgs& args) {
       trajectory.push_back(sp);
     }
   }
-  const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::printf("frames sent %zu, poses received %zu, server errors %zu, %.1f s (%.1f frames/s)\n", n,
-              trajectory.size(), errors.load(), elapsed, static_cast<double>(n) / elapsed);
+  const double elapsed = std::chrono::duration<double>(last_pose - start).count();
+  std::printf("frames sent %zu, poses received %zu, server errors %zu, %.1f s to the last pose "
+              "(%.1f frames/s)\n",
+              n, trajectory.size(), errors.load(), elapsed, static_cast<double>(n) / elapsed);
+  print_latency(sent, arrived, poses);
   if (!args.out.empty()) {
     if (!core::write_tum_trajectory(args.out, trajectory, &why)) return fail(why);
     std::printf("wrote %s\n", args.out.c_str());

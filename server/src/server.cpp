@@ -4,32 +4,70 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <unordered_map>
 #include <utility>
 #include <vector>
+
+#include <opencv2/core/mat.hpp>
 
 #include "fslam/core/error.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/frame_codec.hpp"
+#include "fslam/server/map_files.hpp"
+#include "fslam/server/render_images.hpp"
 
 namespace fslam::server {
 
 using client::check_dds;
 using client::Entity;
+using Clock = std::chrono::steady_clock;
 
-// One streaming session: its pipeline, its bounded queue and its two threads.
+// A map the server serves: built by a streaming session (pipeline) or loaded from disk (loaded).
+// Kept after its session closes, so that it can still be queried and saved.
+struct Server::MapEntry {
+  std::string name;
+  std::shared_ptr<core::SlamPipeline> pipeline;  // null for a loaded map
+  core::MapVersions loaded;
+  std::mutex mutex;  // guards everything below
+  core::PinholeCamera camera;  // of the frames streamed into it; width 0 before the first
+  std::vector<FramePose> poses;
+  std::unordered_map<std::uint64_t, std::size_t> pose_index;  // frame id -> poses[]
+  bool streaming = false;
+  std::pair<std::uint64_t, std::size_t> saved{0, 0};  // (version, poses) last saved at home
+
+  core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
+};
+
+// One streaming session: its bounded queue and its two threads; the pipeline is its map's.
 struct Server::Session {
-  std::string name, map_name;
-  std::unique_ptr<core::SlamPipeline> pipeline;
+  std::string name;
+  std::shared_ptr<MapEntry> map;
   std::mutex mutex;
   std::condition_variable wake;
-  std::deque<core::RgbdFrame> queue;
+  std::deque<QueuedFrame> queue;
   bool closing = false;
   std::thread tracking, mapping;
   // Status counters (guarded by `mutex`).
   std::uint64_t received = 0, processed = 0, dropped = 0;
   std::string last_drop_reason;
   std::deque<double> track_ms;  // the latest tracking times, for p50 / p99
+};
+
+struct Server::QueuedFrame {
+  core::RgbdFrame frame;
+  float decode_ms = 0.0f;
+  Clock::time_point queued;
+};
+
+// An owned copy of a fslam/requests sample.
+struct Server::Query {
+  std::string client, map_name, path;
+  std::uint64_t request_id = 0;
+  fslam_proto_RequestKind kind = fslam_proto_REQUEST_RENDER;
+  fslam_proto_RenderRequest render{};
 };
 
 namespace {
@@ -49,12 +87,42 @@ std::uint64_t resident_bytes() {
   return static_cast<std::uint64_t>(resident) * static_cast<std::uint64_t>(sysconf(_SC_PAGESIZE));
 }
 
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+void to_wire(const Eigen::Isometry3d& T, fslam_proto_Pose* pose) {
+  const Eigen::Quaterniond q(T.rotation());
+  for (int k = 0; k < 3; ++k) pose->translation[k] = T.translation()[k];
+  pose->rotation[0] = q.x();
+  pose->rotation[1] = q.y();
+  pose->rotation[2] = q.z();
+  pose->rotation[3] = q.w();
+}
+
+bool from_wire(const fslam_proto_Pose& pose, Eigen::Isometry3d* T, std::string* why) {
+  const Eigen::Quaterniond q(pose.rotation[3], pose.rotation[0], pose.rotation[1], pose.rotation[2]);
+  const Eigen::Vector3d t(pose.translation[0], pose.translation[1], pose.translation[2]);
+  if (!t.allFinite() || !std::isfinite(q.norm()) || std::abs(q.norm() - 1.0) > 1e-3) {
+    return core::fail(why, "pose: translation must be finite and the quaternion unit length");
+  }
+  T->setIdentity();
+  T->linear() = q.normalized().toRotationMatrix();
+  T->translation() = t;
+  return true;
+}
+
+const char* text(const char* s) { return s != nullptr ? s : ""; }
+
 }  // namespace
 
 bool ServerConfig::is_valid(std::string* why) const {
   if (prefix.empty()) return core::fail(why, "server: empty topic prefix");
   if (queue_capacity == 0) return core::fail(why, "server: queue_capacity must be > 0");
   if (status_period_ms <= 0) return core::fail(why, "server: status_period_ms must be > 0");
+  if (query_threads < 1) return core::fail(why, "server: query_threads must be >= 1");
+  if (query_queue_capacity == 0) return core::fail(why, "server: query_queue_capacity must be > 0");
+  if (max_render_pixels == 0) return core::fail(why, "server: max_render_pixels must be > 0");
   return pipeline.is_valid(why);
 }
 
@@ -62,6 +130,12 @@ Server::Server() = default;
 Server::~Server() {
   deactivate();
   cleanup();
+}
+
+void Server::set_log(std::function<void(const std::string&)> log) { log_ = std::move(log); }
+
+void Server::log(const std::string& message) const {
+  if (log_) log_(message);
 }
 
 bool Server::configure(const ServerConfig& config, std::string* why) {
@@ -73,6 +147,28 @@ bool Server::configure(const ServerConfig& config, std::string* why) {
 
 bool Server::activate(std::string* why) {
   if (!configured_) return core::fail(why, "server: activate before configure");
+  std::string notice;
+  query_rasterizer_ = make_rasterizer("auto", &notice, why);
+  if (!query_rasterizer_) return false;
+  if (!config_.map_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(config_.map_dir, ec);
+    if (ec) return core::fail(why, "map_dir " + config_.map_dir + ": " + ec.message());
+    if (config_.load_maps_at_start) {
+      // One bad folder is reported and skipped: the other maps are still served.
+      for (const auto& entry : std::filesystem::directory_iterator(config_.map_dir, ec)) {
+        const std::string name = entry.path().filename().string();
+        if (!entry.is_directory() || !is_map_folder(entry.path().string())) continue;
+        std::string load_why;
+        if (load(name, entry.path().string(), &load_why)) {
+          log("loaded map '" + name + "' from " + entry.path().string() + " (" +
+              std::to_string(find_map(name)->loaded.latest()->size()) + " Gaussians)");
+        } else {
+          log("skipped map folder " + entry.path().string() + ": " + load_why);
+        }
+      }
+    }
+  }
   try {
     participant_ = client::make_participant(config_.domain);
     dds_qos_t* qos = dds_create_qos();
@@ -84,30 +180,40 @@ bool Server::activate(std::string* why) {
                                                qos, nullptr),
                               std::string("create topic ") + name));
     };
+    auto reader = [&](const Entity& t, const char* what) {
+      return Entity(check_dds(dds_create_reader(participant_.get(), t.get(), qos, nullptr), what));
+    };
+    auto writer = [&](const Entity& t, const char* what) {
+      return Entity(check_dds(dds_create_writer(participant_.get(), t.get(), qos, nullptr), what));
+    };
     frames_topic_ = topic(&fslam_proto_Frame_desc, "frames");
     poses_topic_ = topic(&fslam_proto_PoseStamped_desc, "poses");
     control_topic_ = topic(&fslam_proto_SessionControl_desc, "session");
+    requests_topic_ = topic(&fslam_proto_Request_desc, "requests");
     results_topic_ = topic(&fslam_proto_Result_desc, "results");
     status_topic_ = topic(&fslam_proto_SessionStatus_desc, "status");
-    frame_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), frames_topic_.get(), qos, nullptr), "frame reader"));
-    control_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), control_topic_.get(), qos, nullptr), "session reader"));
-    pose_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), poses_topic_.get(), qos, nullptr), "pose writer"));
-    result_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), results_topic_.get(), qos, nullptr), "result writer"));
+    frame_reader_ = reader(frames_topic_, "frame reader");
+    control_reader_ = reader(control_topic_, "session reader");
+    request_reader_ = reader(requests_topic_, "request reader");
+    pose_writer_ = writer(poses_topic_, "pose writer");
+    result_writer_ = writer(results_topic_, "result writer");
     dds_delete_qos(qos);
     dds_qos_t* best_effort = dds_create_qos();
     dds_qset_reliability(best_effort, DDS_RELIABILITY_BEST_EFFORT, 0);
     status_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), status_topic_.get(), best_effort, nullptr), "status writer"));
     dds_delete_qos(best_effort);
     waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "waitset"));
-    for (const Entity* reader : {&frame_reader_, &control_reader_}) {
-      check_dds(dds_set_status_mask(reader->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
-      check_dds(dds_waitset_attach(waitset_.get(), reader->get(), reader->get()), "attach");
+    for (const Entity* r : {&frame_reader_, &control_reader_, &request_reader_}) {
+      check_dds(dds_set_status_mask(r->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
+      check_dds(dds_waitset_attach(waitset_.get(), r->get(), r->get()), "attach");
     }
   } catch (const client::DdsError& e) {
     return core::fail(why, e.what());
   }
   stop_ = false;
+  queries_stopping_ = false;
   ingest_thread_ = std::thread([this] { ingest(); });
+  for (int i = 0; i < config_.query_threads; ++i) query_threads_.emplace_back([this] { serve_queries(); });
   return true;
 }
 
@@ -117,6 +223,13 @@ void Server::deactivate() {
     dds_waitset_set_trigger(waitset_.get(), true);
     ingest_thread_.join();
   }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    queries_stopping_ = true;  // the queued requests are still answered
+  }
+  query_wake_.notify_all();
+  for (std::thread& t : query_threads_) t.join();
+  query_threads_.clear();
   std::map<std::string, std::unique_ptr<Session>> sessions;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -129,12 +242,31 @@ void Server::deactivate() {
     closers.swap(closers_);
   }
   for (std::thread& t : closers) t.join();
+  if (!configured_ || config_.map_dir.empty() || !config_.save_maps_at_shutdown) return;
+  std::map<std::string, std::shared_ptr<MapEntry>> maps;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    maps = maps_;
+  }
+  for (auto& [name, map] : maps) {
+    std::string folder, why;
+    {
+      std::lock_guard<std::mutex> lock(map->mutex);
+      if (map->saved == std::make_pair(map->versions().version_number(), map->poses.size())) continue;
+    }
+    if (resolve_map_folder(config_.map_dir, "", name, &folder, &why) && save(*map, folder, &why)) {
+      log("saved map '" + name + "' to " + folder);
+    } else {
+      log("could not save map '" + name + "': " + why);
+    }
+  }
 }
 
 void Server::cleanup() {
   waitset_.reset();
   frame_reader_.reset();
   control_reader_.reset();
+  request_reader_.reset();
   pose_writer_.reset();
   result_writer_.reset();
   status_writer_.reset();
@@ -145,32 +277,54 @@ ServerStats Server::stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
   ServerStats s = stats_;
   s.sessions = sessions_.size();
+  s.maps = maps_.size();
   return s;
 }
 
+std::shared_ptr<Server::MapEntry> Server::find_map(const std::string& name) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = maps_.find(name);
+  return it == maps_.end() ? nullptr : it->second;
+}
+
 void Server::ingest() {
-  auto next_status = std::chrono::steady_clock::now();
+  auto next_status = Clock::now();
   while (!stop_) {
-    if (std::chrono::steady_clock::now() >= next_status) {
+    if (Clock::now() >= next_status) {
       publish_status();
       next_status += std::chrono::milliseconds(config_.status_period_ms);
     }
-    dds_attach_t triggered[2];
-    dds_waitset_wait(waitset_.get(), triggered, 2, DDS_MSECS(200));
+    dds_attach_t triggered[3];
+    dds_waitset_wait(waitset_.get(), triggered, 3, DDS_MSECS(200));
     // Session control first, so that a session opened just before its first frame exists.
     client::take_each<fslam_proto_SessionControl>(
         control_reader_.get(), [&](const fslam_proto_SessionControl& m) { handle_control(m); });
     client::take_each<fslam_proto_Frame>(frame_reader_.get(),
                                          [&](const fslam_proto_Frame& m) { handle_frame(m); });
+    client::take_each<fslam_proto_Request>(request_reader_.get(),
+                                           [&](const fslam_proto_Request& m) { accept_request(m); });
   }
 }
 
 void Server::publish_status() {
-  std::lock_guard<std::mutex> lock(mutex_);
   const std::uint64_t rss = resident_bytes();
+  std::vector<std::shared_ptr<MapEntry>> idle;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [name, map] : maps_) {
+    std::lock_guard<std::mutex> mlock(map->mutex);
+    if (!map->streaming) idle.push_back(map);
+  }
+  auto describe_map = [&](MapEntry& map, fslam_proto_SessionStatus* st) {
+    std::lock_guard<std::mutex> mlock(map.mutex);
+    st->streaming = map.streaming;
+    st->frames_tracked = map.poses.size();
+    st->map_version = map.versions().version_number();
+    st->map_gaussians = map.versions().latest()->size();
+    st->resident_bytes = rss;
+  };
   for (const auto& [name, s] : sessions_) {
     fslam_proto_SessionStatus st{};
-    std::string session = s->name, map = s->map_name, reason;
+    std::string session = s->name, map = s->map->name, reason;
     std::vector<double> ms;
     {
       std::lock_guard<std::mutex> qlock(s->mutex);
@@ -184,10 +338,18 @@ void Server::publish_status() {
     st.session = session.data();
     st.map_name = map.data();
     st.last_drop_reason = reason.data();
-    st.map_gaussians = s->pipeline->latest_map()->size();
     st.track_ms_p50 = static_cast<float>(quantile(ms, 0.5));
     st.track_ms_p99 = static_cast<float>(quantile(ms, 0.99));
-    st.resident_bytes = rss;
+    describe_map(*s->map, &st);
+    dds_write(status_writer_.get(), &st);
+  }
+  for (const auto& map : idle) {
+    fslam_proto_SessionStatus st{};
+    std::string empty, name = map->name;
+    st.session = empty.data();
+    st.map_name = name.data();
+    st.last_drop_reason = empty.data();
+    describe_map(*map, &st);
     dds_write(status_writer_.get(), &st);
   }
 }
@@ -195,51 +357,67 @@ void Server::publish_status() {
 void Server::publish_result(const char* client, std::uint64_t request_id, const std::string& map_name,
                             const std::string& error) {
   fslam_proto_Result r{};
-  std::string c = client != nullptr ? client : "", m = map_name, e = error;
+  std::string c = text(client), m = map_name, e = error, empty;
   r.client = c.data();
   r.request_id = request_id;
   r.map_name = m.data();
   r.status = error.empty() ? fslam_proto_RESULT_OK : fslam_proto_RESULT_ERROR;
   r.error = e.data();
+  r.path = empty.data();
   dds_write(result_writer_.get(), &r);
 }
 
 void Server::handle_control(const fslam_proto_SessionControl& msg) {
-  const std::string name = msg.session != nullptr ? msg.session : "";
-  const std::string map = msg.map_name != nullptr && msg.map_name[0] ? msg.map_name : name;
-  if (name.empty()) return publish_result(msg.session, msg.request_id, map, "session name is empty");
+  const std::string name = text(msg.session);
+  const std::string map_name = msg.map_name != nullptr && msg.map_name[0] ? msg.map_name : name;
+  if (name.empty()) return publish_result(msg.session, msg.request_id, map_name, "session name is empty");
+  if (msg.attach_only) {
+    // A query-only client: nothing to create, the answer says whether the map is there.
+    const bool exists = find_map(map_name) != nullptr;
+    return publish_result(msg.session, msg.request_id, map_name,
+                          exists ? "" : "no map named '" + map_name + "'");
+  }
   std::unique_ptr<Session> closing;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     const auto it = sessions_.find(name);
     if (msg.command == fslam_proto_SESSION_OPEN) {
       if (it != sessions_.end()) {
-        publish_result(msg.session, msg.request_id, it->second->map_name, "");
-        return;  // opening twice is harmless
+        if (it->second->map->name == map_name) return publish_result(msg.session, msg.request_id, map_name, "");
+        return publish_result(msg.session, msg.request_id, map_name,
+                              "session '" + name + "' already streams into map '" +
+                                  it->second->map->name + "'");
       }
-      if (msg.attach_only) {
-        return publish_result(msg.session, msg.request_id, map, "no map named '" + map + "'");
+      if (maps_.count(map_name) != 0) {
+        // Growing a finished or loaded map would need relocalising in it first: not supported.
+        return publish_result(msg.session, msg.request_id, map_name,
+                              "map '" + map_name + "' exists; stream into a new map name (query "
+                              "this one with render requests)");
       }
       std::string why, notice;
       std::shared_ptr<const core::Rasterizer> rasterizer = make_rasterizer("auto", &notice, &why);
-      if (!rasterizer) return publish_result(msg.session, msg.request_id, map, why);
+      if (!rasterizer) return publish_result(msg.session, msg.request_id, map_name, why);
+      auto map = std::make_shared<MapEntry>();
+      map->name = map_name;
+      map->pipeline = std::make_shared<core::SlamPipeline>(config_.pipeline, rasterizer);
+      map->streaming = true;
       auto s = std::make_unique<Session>();
       s->name = name;
-      s->map_name = map;
-      s->pipeline = std::make_unique<core::SlamPipeline>(config_.pipeline, rasterizer);
+      s->map = map;
       Session* raw = s.get();
       s->tracking = std::thread([this, raw] { run_tracking(raw); });
       s->mapping = std::thread([this, raw] {
         std::string mwhy;
-        if (!raw->pipeline->run_mapping(nullptr, &mwhy)) {
+        if (!raw->map->pipeline->run_mapping(nullptr, &mwhy)) {
           // Tracking goes on; clients learn that the map stopped growing, and why.
-          publish_result(raw->name.c_str(), 0, raw->map_name, "mapping failed: " + mwhy);
+          publish_result(raw->name.c_str(), 0, raw->map->name, "mapping failed: " + mwhy);
         }
       });
+      maps_[map_name] = map;
       sessions_[name] = std::move(s);
     } else {
       if (it == sessions_.end()) {
-        return publish_result(msg.session, msg.request_id, map, "unknown session '" + name + "'");
+        return publish_result(msg.session, msg.request_id, map_name, "unknown session '" + name + "'");
       }
       closing = std::move(it->second);
       sessions_.erase(it);
@@ -248,16 +426,16 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
   if (closing) {
     // Draining a session (its queued frames, then mapping) can take a while: do it off the
     // ingest thread so that other sessions keep flowing, and answer when it is done.
-    std::string client = msg.session, map_name = map;
+    std::string client = text(msg.session), map = closing->map->name;
     const std::uint64_t request_id = msg.request_id;
     std::lock_guard<std::mutex> lock(mutex_);
-    closers_.push_back(std::thread([this, owned = std::move(closing), client, map_name, request_id] {
+    closers_.push_back(std::thread([this, owned = std::move(closing), client, map, request_id] {
       finish_session(owned.get());
-      publish_result(client.c_str(), request_id, map_name, "");
+      publish_result(client.c_str(), request_id, map, "");
     }));
     return;
   }
-  publish_result(msg.session, msg.request_id, map, "");
+  publish_result(msg.session, msg.request_id, map_name, "");
 }
 
 void Server::finish_session(Session* s) {
@@ -267,16 +445,20 @@ void Server::finish_session(Session* s) {
   }
   s->wake.notify_all();
   if (s->tracking.joinable()) s->tracking.join();  // every accepted frame is tracked
-  s->pipeline->finish();
+  s->map->pipeline->finish();
   if (s->mapping.joinable()) s->mapping.join();
+  std::lock_guard<std::mutex> lock(s->map->mutex);
+  s->map->streaming = false;
 }
 
 void Server::handle_frame(const fslam_proto_Frame& msg) {
-  const std::string name = msg.session != nullptr ? msg.session : "";
+  const std::string name = text(msg.session);
   // Decoding (PNG/JPEG) is the costly part: done before taking the server's lock.
-  core::RgbdFrame frame;
+  QueuedFrame queued;
   std::string decode_why, why;
-  const bool decoded = decode_frame(msg, &frame, &decode_why);
+  const Clock::time_point t0 = Clock::now();
+  const bool decoded = decode_frame(msg, &queued.frame, &decode_why);
+  queued.decode_ms = static_cast<float>(ms_since(t0));
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.frames_received;
   const auto it = sessions_.find(name);
@@ -306,57 +488,262 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
       publish_result(msg.session, msg.frame_id, name, s.last_drop_reason);
       return;
     }
-    s.queue.push_back(std::move(frame));
+    queued.queued = Clock::now();
+    s.queue.push_back(std::move(queued));
   }
   s.wake.notify_one();
 }
 
 void Server::run_tracking(Session* s) {
   bool first = true;
+  core::SlamPipeline& pipeline = *s->map->pipeline;
   for (;;) {
-    core::RgbdFrame frame;
+    QueuedFrame queued;
     {
       std::unique_lock<std::mutex> lock(s->mutex);
       s->wake.wait(lock, [&] { return !s->queue.empty() || s->closing; });
       if (s->queue.empty()) return;  // closing and drained
-      frame = std::move(s->queue.front());
+      queued = std::move(s->queue.front());
       s->queue.pop_front();
     }
-    if (first && frame.T_world_camera_gt) s->pipeline->set_initial_pose(*frame.T_world_camera_gt);
+    const core::RgbdFrame& frame = queued.frame;
+    const double queue_ms = ms_since(queued.queued);
+    if (first && frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
     first = false;
     core::TrackingResult result;
     std::string why;
-    const auto t0 = std::chrono::steady_clock::now();
-    const bool tracked = s->pipeline->process_frame(frame, &result, &why);
+    const Clock::time_point t0 = Clock::now();
+    const bool tracked = pipeline.process_frame(frame, &result, &why);
+    const double track_ms = ms_since(t0);
     {
       std::lock_guard<std::mutex> lock(s->mutex);
       ++s->processed;
-      s->track_ms.push_back(
-          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      s->track_ms.push_back(track_ms);
       if (s->track_ms.size() > 1000) s->track_ms.pop_front();
     }
     if (!tracked) {
       std::string session = s->name;
-      publish_result(session.c_str(), static_cast<std::uint64_t>(frame.id), s->map_name, why);
+      publish_result(session.c_str(), static_cast<std::uint64_t>(frame.id), s->map->name, why);
       continue;
+    }
+    {
+      std::lock_guard<std::mutex> lock(s->map->mutex);
+      MapEntry& map = *s->map;
+      map.camera = frame.camera;
+      const auto frame_id = static_cast<std::uint64_t>(frame.id);
+      map.pose_index[frame_id] = map.poses.size();
+      map.poses.push_back({frame_id, frame.timestamp, result.T_world_camera});
     }
     fslam_proto_PoseStamped pose{};
     std::string session = s->name;
     pose.session = session.data();
     pose.frame_id = static_cast<std::uint64_t>(frame.id);
     pose.timestamp = frame.timestamp;
-    const Eigen::Quaterniond q(result.T_world_camera.rotation());
-    for (int k = 0; k < 3; ++k) pose.T_world_camera.translation[k] = result.T_world_camera.translation()[k];
-    pose.T_world_camera.rotation[0] = q.x();
-    pose.T_world_camera.rotation[1] = q.y();
-    pose.T_world_camera.rotation[2] = q.z();
-    pose.T_world_camera.rotation[3] = q.w();
+    to_wire(result.T_world_camera, &pose.T_world_camera);
     pose.state = static_cast<fslam_proto_TrackingState>(static_cast<int>(result.state));
     pose.keyframe = result.keyframe;
+    pose.decode_ms = queued.decode_ms;
+    pose.queue_ms = static_cast<float>(queue_ms);
+    pose.track_ms = static_cast<float>(track_ms);
     dds_write(pose_writer_.get(), &pose);
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.poses_published;
   }
+}
+
+void Server::accept_request(const fslam_proto_Request& msg) {
+  auto query = std::make_unique<Query>();
+  query->client = text(msg.client);
+  query->request_id = msg.request_id;
+  query->map_name = text(msg.map_name);
+  query->path = text(msg.path);
+  query->kind = msg.kind;
+  query->render = msg.render;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (queries_.size() < config_.query_queue_capacity) {
+      queries_.push_back(std::move(query));
+      query_wake_.notify_one();
+      return;
+    }
+    ++stats_.requests_failed;
+  }
+  publish_result(msg.client, msg.request_id, query->map_name,
+                 "server busy: " + std::to_string(config_.query_queue_capacity) +
+                     " requests already waiting; try again");
+}
+
+void Server::serve_queries() {
+  for (;;) {
+    std::unique_ptr<Query> query;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      query_wake_.wait(lock, [&] { return !queries_.empty() || queries_stopping_; });
+      if (queries_.empty()) return;
+      query = std::move(queries_.front());
+      queries_.pop_front();
+    }
+    answer(*query);
+  }
+}
+
+void Server::answer(const Query& query) {
+  fslam_proto_Result r{};
+  std::vector<std::vector<std::uint8_t>> buffers;  // image bytes the result points into
+  std::vector<fslam_proto_Image> images;
+  std::string folder, why;
+  bool ok = false;
+  const std::shared_ptr<MapEntry> map = find_map(query.map_name);
+  switch (query.kind) {
+    case fslam_proto_REQUEST_RENDER:
+      if (!map) why = "no map named '" + query.map_name + "'";
+      else ok = render(query, *map, &r, &buffers, &images, &why);
+      break;
+    case fslam_proto_REQUEST_SAVE_MAP:
+      if (!map) why = "no map named '" + query.map_name + "'";
+      else ok = resolve_map_folder(config_.map_dir, query.path, query.map_name, &folder, &why) &&
+                save(*map, folder, &why);
+      break;
+    case fslam_proto_REQUEST_LOAD_MAP:
+      ok = resolve_map_folder(config_.map_dir, query.path, query.map_name, &folder, &why) &&
+           load(query.map_name, folder, &why);
+      if (ok) log("loaded map '" + query.map_name + "' from " + folder + " on request");
+      break;
+    default:
+      why = "unknown request kind " + std::to_string(static_cast<int>(query.kind));
+  }
+  if (ok && query.kind != fslam_proto_REQUEST_RENDER) {
+    const std::shared_ptr<MapEntry> now = find_map(query.map_name);
+    r.map_version = now->versions().version_number();
+    r.map_gaussians = now->versions().latest()->size();
+  }
+  std::string client = query.client, map_name = query.map_name, error = ok ? "" : why;
+  r.client = client.data();
+  r.request_id = query.request_id;
+  r.map_name = map_name.data();
+  r.status = ok ? fslam_proto_RESULT_OK : fslam_proto_RESULT_ERROR;
+  r.error = error.data();
+  r.path = folder.data();
+  dds_write(result_writer_.get(), &r);
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++(ok ? stats_.requests_answered : stats_.requests_failed);
+}
+
+bool Server::render(const Query& query, MapEntry& map, fslam_proto_Result* result,
+                    std::vector<std::vector<std::uint8_t>>* buffers,
+                    std::vector<fslam_proto_Image>* images, std::string* why) {
+  const fslam_proto_RenderRequest& req = query.render;
+  constexpr std::uint32_t kKnown = fslam_proto_CHANNEL_COLOUR | fslam_proto_CHANNEL_DEPTH |
+                                   fslam_proto_CHANNEL_NORMALS | fslam_proto_CHANNEL_OPACITY;
+  if (req.channels == 0 || (req.channels & ~kKnown) != 0) {
+    return core::fail(why, "render: channels must be a non-empty set of CHANNEL_* bits");
+  }
+  const float depth_scale = req.depth_scale == 0.0f ? 1000.0f : req.depth_scale;
+  if (!(depth_scale > 0) || !std::isfinite(depth_scale)) return core::fail(why, "render: depth_scale must be positive");
+  core::RenderView view;
+  Eigen::Isometry3d T_world_camera;
+  {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    if (req.from_frame) {
+      const auto it = map.pose_index.find(req.frame_id);
+      if (it == map.pose_index.end()) {
+        return core::fail(why, "render: map '" + map.name + "' has no tracked pose for frame " +
+                                   std::to_string(req.frame_id));
+      }
+      T_world_camera = map.poses[it->second].T_world_camera;
+    } else if (!from_wire(req.T_world_camera, &T_world_camera, why)) {
+      return false;
+    }
+    view.camera = map.camera;
+  }
+  const fslam_proto_Intrinsics& k = req.intrinsics;
+  if (k.width != 0) {
+    view.camera = {k.fx, k.fy, k.cx, k.cy, static_cast<int>(k.width), static_cast<int>(k.height)};
+  } else if (view.camera.width == 0) {
+    return core::fail(why, "render: map '" + map.name + "' has no camera of its own; give intrinsics");
+  }
+  std::string reason;
+  if (!view.camera.is_valid(&reason)) return core::fail(why, "render: intrinsics: " + reason);
+  if (static_cast<std::uint64_t>(view.camera.width) * static_cast<std::uint64_t>(view.camera.height) >
+      config_.max_render_pixels) {
+    return core::fail(why, "render: " + std::to_string(view.camera.width) + "x" +
+                               std::to_string(view.camera.height) + " is over the server's limit of " +
+                               std::to_string(config_.max_render_pixels) + " pixels");
+  }
+  view.T_camera_world = T_world_camera.inverse();
+  const std::uint64_t version_number = map.versions().version_number();
+  const core::MapVersions::Version version = map.versions().latest();
+  core::RenderSettings settings;
+  settings.features = false;
+  core::RenderResult rendered;
+  if (!query_rasterizer_->forward(*version, view, settings, &rendered, why)) return false;
+  std::vector<ChannelImage> channels = render_channels(rendered, view.camera, req.channels, depth_scale);
+  buffers->resize(channels.size());
+  images->resize(channels.size());
+  for (std::size_t i = 0; i < channels.size(); ++i) {
+    const cv::Mat& image = channels[i].image;
+    if (!encode_png(image, &(*buffers)[i])) return core::fail(why, "render: cannot encode a result image");
+    (*images)[i] = {fslam_proto_ENCODING_PNG,
+                 static_cast<std::uint32_t>(image.cols),
+                 static_cast<std::uint32_t>(image.rows),
+                 static_cast<std::uint8_t>(image.channels()),
+                 static_cast<std::uint8_t>(image.elemSize1()),
+                 {static_cast<std::uint32_t>((*buffers)[i].size()),
+                  static_cast<std::uint32_t>((*buffers)[i].size()), (*buffers)[i].data(), false}};
+  }
+  result->images = {static_cast<std::uint32_t>(images->size()),
+                    static_cast<std::uint32_t>(images->size()), images->data(), false};
+  to_wire(T_world_camera, &result->T_world_camera);
+  result->intrinsics = {static_cast<float>(view.camera.fx), static_cast<float>(view.camera.fy),
+                        static_cast<float>(view.camera.cx), static_cast<float>(view.camera.cy),
+                        static_cast<std::uint32_t>(view.camera.width),
+                        static_cast<std::uint32_t>(view.camera.height)};
+  result->map_version = version_number;
+  result->map_gaussians = version->size();
+  return true;
+}
+
+bool Server::save(MapEntry& map, const std::string& folder, std::string* why) {
+  StoredMap stored;
+  std::pair<std::uint64_t, std::size_t> state;
+  {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    state = {map.versions().version_number(), map.poses.size()};
+    stored.gaussians = map.versions().latest();
+    stored.camera = map.camera;
+    stored.poses = map.poses;
+  }
+  if (!save_map_folder(folder, stored, why)) return false;
+  // Only a save to the map's own folder (the one a restart loads it from) counts as saved.
+  std::string home, ignored;
+  if (resolve_map_folder(config_.map_dir, "", map.name, &home, &ignored) && home == folder) {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    map.saved = state;
+  }
+  return true;
+}
+
+bool Server::load(const std::string& name, const std::string& folder, std::string* why) {
+  if (name.empty()) return core::fail(why, "load map: no map name");
+  StoredMap stored;
+  if (!load_map_folder(folder, &stored, why)) return false;
+  auto map = std::make_shared<MapEntry>();
+  map->name = name;
+  map->loaded.publish(stored.gaussians);
+  map->camera = stored.camera;
+  map->poses = std::move(stored.poses);
+  for (std::size_t i = 0; i < map->poses.size(); ++i) map->pose_index[map->poses[i].frame_id] = i;
+  map->saved = {map->loaded.version_number(), map->poses.size()};
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = maps_.find(name);
+  if (it != maps_.end()) {
+    std::lock_guard<std::mutex> mlock(it->second->mutex);
+    if (it->second->streaming) {
+      return core::fail(why, "load map: map '" + name + "' has a streaming session; close it first");
+    }
+  }
+  maps_[name] = map;  // queries in flight keep the version they hold
+  return true;
 }
 
 }  // namespace fslam::server

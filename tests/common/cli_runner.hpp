@@ -3,6 +3,7 @@
 
 #include <sys/wait.h>
 
+#include <atomic>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
@@ -13,8 +14,10 @@
 namespace fslam::test {
 
 // Runs a shell command; returns its exit status and what it wrote to stdout and stderr.
+// Safe to call from several threads at once.
 inline int run_command(const std::string& command, std::string* out, std::string* err) {
-  const auto dir = fresh_temp_dir("run");
+  static std::atomic<int> calls{0};
+  const auto dir = fresh_temp_dir("run" + std::to_string(calls++));
   const std::string full = command + " >" + (dir / "out").string() + " 2>" + (dir / "err").string();
   const int status = std::system(full.c_str());
   std::stringstream o, e;

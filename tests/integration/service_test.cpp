@@ -4,7 +4,9 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <fstream>
+#include <future>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -14,6 +16,7 @@
 
 #include "cli_runner.hpp"
 #include "fslam/client/client.hpp"
+#include "fslam/core/dataset/dataset.hpp"
 
 namespace fslam {
 namespace {
@@ -26,6 +29,56 @@ double ate_from(const std::string& out) {
   return at == std::string::npos ? -1.0 : std::stod(out.substr(at + 9));
 }
 
+// Starts fslam-server in the background with `args`; returns its pid (or -1).
+pid_t start_server(const std::string& args, const std::string& log) {
+  const std::string server = (test::bin_dir() / "fslam-server").string();
+  const std::string pid_file = log + ".pid";
+  std::system((server + " " + args + " >" + log + " 2>&1 & echo $! >" + pid_file).c_str());
+  pid_t pid = -1;
+  std::ifstream(pid_file) >> pid;
+  return pid;
+}
+
+// SIGTERM and wait for the process to exit (a server saves its maps on the way out).
+void stop_process(pid_t pid) {
+  if (pid <= 0) return;
+  kill(pid, SIGTERM);
+  for (int i = 0; i < 600 && kill(pid, 0) == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+}
+
+client::ClientOptions options_for(const std::string& prefix) {
+  client::ClientOptions options;
+  options.prefix = prefix;
+  return options;
+}
+
+const client::RenderedImage* channel(const client::RenderOutput& out, std::uint32_t bit) {
+  for (const auto& image : out.images)
+    if (image.channel == bit) return &image;
+  return nullptr;
+}
+
+// Mean |rendered - observed| depth in metres over pixels where both exist, and that coverage.
+double mean_depth_error(const client::RenderedImage& rendered, float depth_scale,
+                        const cv::Mat& observed_m, double* coverage) {
+  const auto* d = reinterpret_cast<const std::uint16_t*>(rendered.pixels.data());
+  double sum = 0;
+  std::size_t n = 0, both = 0;
+  for (int v = 0; v < observed_m.rows; ++v)
+    for (int u = 0; u < observed_m.cols; ++u) {
+      const float z = observed_m.at<float>(v, u);
+      const std::uint16_t r = d[static_cast<std::size_t>(v) * rendered.width + static_cast<std::size_t>(u)];
+      if (z <= 0.f) continue;
+      ++n;
+      if (r == 0) continue;
+      ++both;
+      sum += std::abs(r / depth_scale - z);
+    }
+  *coverage = n == 0 ? 0.0 : static_cast<double>(both) / static_cast<double>(n);
+  return both == 0 ? 1e9 : sum / static_cast<double>(both);
+}
+
 class Service : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -35,19 +88,9 @@ class Service : public ::testing::Test {
     std::string out, err;
     synth_status_ = run_command(fslam_bin() + " synth --out " + dir_ + "/seq --frames 100 --seed 5",
                                 &out, &err);
-    const std::string server = (test::bin_dir() / "fslam-server").string();
-    std::system((server + " --prefix " + prefix_ + " >" + dir_ + "/server.log 2>&1 & echo $! >" +
-                 dir_ + "/server.pid")
-                    .c_str());
-    std::ifstream(dir_ + "/server.pid") >> server_pid_;
+    server_pid_ = start_server("--prefix " + prefix_, dir_ + "/server.log");
   }
-  static void TearDownTestSuite() {
-    if (server_pid_ > 0) {
-      kill(server_pid_, SIGTERM);
-      for (int i = 0; i < 300 && kill(server_pid_, 0) == 0; ++i)
-        std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
-  }
+  static void TearDownTestSuite() { stop_process(server_pid_); }
   void SetUp() override {
     ASSERT_EQ(synth_status_, 0);
     ASSERT_GT(server_pid_, 0) << "fslam-server did not start";
@@ -144,6 +187,223 @@ TEST_F(Service, MalformedFramesGetErrorResults) {
   EXPECT_FALSE(c.close_session("b", 5000, &why));
   EXPECT_NE(why.find("unknown session"), std::string::npos) << why;
   EXPECT_EQ(kill(server_pid_, 0), 0) << "the server must survive bad input";
+}
+
+// Two clients stream into two maps while a third renders from both, during and after.
+TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
+  auto stream = [&](const std::string& session, const std::string& frames) {
+    return std::async(std::launch::async, [=] {
+      std::string out, err;
+      const int rc = run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --frames " + frames +
+                                     " --prefix " + prefix_ + " --session " + session + " --map map-" +
+                                     session + " --rate 15",
+                                 &out, &err);
+      return std::make_pair(rc, out + err);
+    });
+  };
+  auto first = stream("one", "0:40");
+  auto second = stream("two", "50:90");
+  client::Client viewer(options_for(prefix_));
+  int renders_while_streaming = 0;
+  std::string why;
+  while (first.wait_for(std::chrono::milliseconds(0)) != std::future_status::ready ||
+         second.wait_for(std::chrono::milliseconds(0)) != std::future_status::ready) {
+    for (const char* map : {"map-one", "map-two"}) {
+      client::RenderQuery q;
+      q.map_name = map;
+      q.from_frame = true;
+      q.frame_id = std::string(map) == "map-one" ? 0 : 50;
+      q.channels = client::kColour | client::kOpacity;
+      client::RenderOutput out;
+      if (viewer.render(q, &out, 10000, &why)) ++renders_while_streaming;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  const auto [rc1, log1] = first.get();
+  const auto [rc2, log2] = second.get();
+  ASSERT_EQ(rc1, 0) << log1;
+  ASSERT_EQ(rc2, 0) << log2;
+  EXPECT_NE(log1.find("poses received 40"), std::string::npos) << log1;
+  EXPECT_NE(log2.find("poses received 40"), std::string::npos) << log2;
+  EXPECT_GE(renders_while_streaming, 2) << "renders must be served while maps are being built";
+
+  // After the streams: each map rendered from one of its tracked frames reproduces that frame's
+  // observed depth, so each map holds its own part of the room.
+  core::DatasetOptions options;
+  auto dataset = core::open_dataset(dir_ + "/seq", options, &why);
+  ASSERT_TRUE(dataset) << why;
+  for (const auto& [map, frame] : {std::make_pair("map-one", 20), std::make_pair("map-two", 70)}) {
+    ASSERT_TRUE(viewer.attach_map(map, 10000, &why)) << why;
+    client::RenderQuery q;
+    q.map_name = map;
+    q.from_frame = true;
+    q.frame_id = static_cast<std::uint64_t>(frame);
+    q.depth_scale = 1000.0f;
+    client::RenderOutput out;
+    ASSERT_TRUE(viewer.render(q, &out, 20000, &why)) << why;
+    ASSERT_EQ(out.images.size(), 4u);
+    EXPECT_EQ(out.intrinsics.width, 640u);
+    const client::RenderedImage* depth = channel(out, client::kDepth);
+    ASSERT_NE(depth, nullptr);
+    EXPECT_EQ(depth->bytes_per_channel, 2);
+    core::RgbdFrame observed;
+    ASSERT_TRUE(dataset->load(static_cast<std::size_t>(frame), &observed, &why)) << why;
+    double coverage = 0;
+    const double error = mean_depth_error(*depth, q.depth_scale, observed.depth, &coverage);
+    EXPECT_GT(coverage, 0.9) << map;
+    EXPECT_LT(error, 0.03) << map << ": mean depth error " << error << " m";
+  }
+  client::RenderQuery small;  // explicit pose and camera: the output has the asked size
+  small.map_name = "map-two";
+  small.translation[0] = 2.0;
+  small.translation[1] = 1.0;
+  small.translation[2] = 1.4;
+  small.intrinsics = {250.f, 250.f, 159.5f, 119.5f, 320, 240};
+  small.channels = client::kColour;
+  client::RenderOutput out;
+  ASSERT_TRUE(viewer.render(small, &out, 20000, &why)) << why;
+  ASSERT_EQ(out.images.size(), 1u);
+  EXPECT_EQ(out.images[0].width, 320u);
+  EXPECT_EQ(out.images[0].height, 240u);
+  EXPECT_EQ(out.images[0].pixels.size(), 320u * 240u * 3u);
+}
+
+// A client killed mid-stream leaves the server serving everyone else, and the frames it had
+// accepted stay in the map.
+TEST_F(Service, KilledClientLeavesTheServerServing) {
+  const std::string pid_file = dir_ + "/killed.pid";
+  std::system((fslam_bin() + " stream --dataset " + dir_ + "/seq --prefix " + prefix_ +
+               " --session doomed --map doomed --rate 20 >" + dir_ + "/killed.log 2>&1 & echo $! >" +
+               pid_file)
+                  .c_str());
+  pid_t doomed = -1;
+  std::ifstream(pid_file) >> doomed;
+  ASSERT_GT(doomed, 0);
+  client::Client watcher(options_for(prefix_));
+  std::mutex mutex;
+  std::uint64_t processed = 0;
+  watcher.on_status([&](const client::StatusUpdate& s) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (s.session == "doomed") processed = s.frames_processed;
+  });
+  for (int i = 0; i < 600; ++i) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (processed >= 10) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  kill(doomed, SIGKILL);
+  ASSERT_GE(processed, 10u) << "the doomed stream never got going";
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  ASSERT_EQ(kill(server_pid_, 0), 0) << "the server died with its client";
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --frames 0:20 --prefix " +
+                            prefix_ + " --session survivor --map survivor",
+                        &out, &err),
+            0)
+      << out << err;
+  EXPECT_NE(out.find("poses received 20"), std::string::npos) << out;
+  client::RenderQuery q;
+  q.map_name = "doomed";
+  q.from_frame = true;
+  q.frame_id = 5;
+  q.channels = client::kOpacity;
+  client::RenderOutput rendered;
+  std::string why;
+  ASSERT_TRUE(watcher.render(q, &rendered, 20000, &why)) << why;
+  EXPECT_GT(rendered.map_gaussians, 1000u);
+}
+
+// Requests that make no sense get error results that say why; the server stays up.
+TEST_F(Service, MalformedRequestsGetErrorResults) {
+  client::Client c(options_for(prefix_));
+  std::string why;
+  client::RenderQuery q;
+  client::RenderOutput out;
+  q.map_name = "no-such-map";
+  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_NE(why.find("no map named"), std::string::npos) << why;
+  EXPECT_FALSE(c.attach_map("no-such-map", 10000, &why));
+  EXPECT_NE(why.find("no map named"), std::string::npos) << why;
+  // A map to aim at: ten frames.
+  std::string out_text, err;
+  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --frames 0:10 --prefix " +
+                            prefix_ + " --session target --map target",
+                        &out_text, &err),
+            0)
+      << out_text << err;
+  q.map_name = "target";
+  q.rotation[3] = 2.0;  // not a unit quaternion
+  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_NE(why.find("quaternion"), std::string::npos) << why;
+  q.rotation[3] = 1.0;
+  q.channels = 64;  // no such channel
+  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_NE(why.find("channels"), std::string::npos) << why;
+  q.channels = client::kColour;
+  q.intrinsics = {500.f, 500.f, 50000.f, 50000.f, 100000, 100000};  // over the pixel limit
+  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_NE(why.find("limit"), std::string::npos) << why;
+  q.intrinsics = {};
+  q.from_frame = true;
+  q.frame_id = 999;  // never tracked
+  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_NE(why.find("no tracked pose"), std::string::npos) << why;
+  std::string folder;
+  EXPECT_FALSE(c.save_map("target", "", 10000, &folder, &why));  // this server has no map_dir
+  EXPECT_NE(why.find("map_dir"), std::string::npos) << why;
+  EXPECT_EQ(kill(server_pid_, 0), 0);
+}
+
+// A saved map is served again after a server restart, and renders exactly as before.
+TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("restart").string();
+  const std::string prefix = "rst" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 20 --seed 9", &out, &err), 0)
+      << err;
+  const std::string server_args = "--prefix " + prefix + " --map-dir " + dir + "/maps";
+  pid_t server = start_server(server_args, dir + "/server1.log");
+  ASSERT_GT(server, 0);
+  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir + "/seq --prefix " + prefix +
+                            " --session s --map kept",
+                        &out, &err),
+            0)
+      << out << err;
+  client::RenderOutput before, after;
+  client::RenderQuery q;
+  q.map_name = "kept";
+  q.from_frame = true;
+  q.frame_id = 10;
+  {
+    client::Client c(options_for(prefix));
+    ASSERT_TRUE(c.render(q, &before, 20000, &why)) << why;
+    std::string folder;
+    ASSERT_TRUE(c.save_map("kept", "copy", 20000, &folder, &why)) << why;  // on request
+    EXPECT_EQ(folder, dir + "/maps/copy");
+    EXPECT_FALSE(c.save_map("kept", "../outside", 20000, &folder, &why));
+    EXPECT_NE(why.find(".."), std::string::npos) << why;
+  }
+  stop_process(server);  // saves "kept" on the way out
+  ASSERT_NE(kill(server, 0), 0);
+  server = start_server(server_args, dir + "/server2.log");
+  ASSERT_GT(server, 0);
+  {
+    client::Client c(options_for(prefix));
+    ASSERT_TRUE(c.attach_map("kept", 20000, &why)) << why;
+    ASSERT_TRUE(c.render(q, &after, 20000, &why)) << why;
+    ASSERT_TRUE(c.attach_map("copy", 20000, &why)) << why;  // every saved folder is served
+    ASSERT_TRUE(c.load_map("again", "kept", 20000, &why)) << why;
+    EXPECT_FALSE(c.load_map("bad", "nothing-here", 20000, &why));
+  }
+  stop_process(server);
+  EXPECT_EQ(before.map_gaussians, after.map_gaussians);
+  ASSERT_EQ(before.images.size(), after.images.size());
+  for (std::size_t i = 0; i < before.images.size(); ++i) {
+    EXPECT_EQ(before.images[i].pixels, after.images[i].pixels) << "channel " << before.images[i].channel;
+  }
 }
 
 }  // namespace

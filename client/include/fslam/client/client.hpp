@@ -7,7 +7,11 @@
 #include <condition_variable>
 #include <functional>
 #include <map>
+#include <memory>
+#include <utility>
+#include <vector>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 
@@ -48,6 +52,7 @@ struct PoseUpdate {
   double rotation[4] = {0, 0, 0, 1};  // qx qy qz qw
   int state = 0;                      // fslam_proto_TrackingState
   bool keyframe = false;
+  float decode_ms = 0, queue_ms = 0, track_ms = 0;  // the server's time on this frame
 };
 
 // A server's answer to a request or session control, or its report of a rejected or dropped
@@ -67,6 +72,38 @@ struct StatusUpdate {
   std::uint64_t frames_received = 0, frames_processed = 0, frames_dropped = 0;
   std::uint64_t map_gaussians = 0, resident_bytes = 0;
   float track_ms_p50 = 0, track_ms_p99 = 0;
+  bool streaming = false;               // false: a map no session streams into (session empty)
+  std::uint64_t map_version = 0, frames_tracked = 0;
+};
+
+// Channels of a render (the proto's CHANNEL_* bits).
+enum RenderChannel : std::uint32_t { kColour = 1, kDepth = 2, kNormals = 4, kOpacity = 8 };
+
+struct RenderQuery {
+  std::string map_name;
+  double translation[3] = {0, 0, 0};  // camera-to-world, metres
+  double rotation[4] = {0, 0, 0, 1};  // qx qy qz qw
+  bool from_frame = false;            // render from the tracked pose of frame_id instead
+  std::uint64_t frame_id = 0;
+  CameraIntrinsics intrinsics;        // width 0: the camera the map was built with
+  std::uint32_t channels = kColour | kDepth | kNormals | kOpacity;
+  float depth_scale = 1000.0f;        // depth image units per metre
+};
+
+// A decoded result image: tightly packed rows; RGB for colour and normals, 16-bit depth in
+// depth_scale units (0 = nothing rendered), 8-bit opacity.
+struct RenderedImage {
+  std::uint32_t channel = 0;  // one RenderChannel
+  std::uint32_t width = 0, height = 0;
+  std::uint8_t channels = 0, bytes_per_channel = 0;
+  std::vector<std::uint8_t> pixels;
+};
+
+struct RenderOutput {
+  std::vector<RenderedImage> images;  // in channel bit order
+  double translation[3] = {0, 0, 0}, rotation[4] = {0, 0, 0, 1};  // the pose rendered from
+  CameraIntrinsics intrinsics;                                     // and the camera
+  std::uint64_t map_version = 0, map_gaussians = 0;
 };
 
 struct ClientOptions {
@@ -91,10 +128,24 @@ class Client {
   bool open_session(const std::string& session, const std::string& map_name, int timeout_ms,
                     std::string* why);
   bool close_session(const std::string& session, int timeout_ms, std::string* why);
+  // Query-only use: succeeds when a map of that name is served.
+  bool attach_map(const std::string& map_name, int timeout_ms, std::string* why);
+  // Renders a map from a pose and waits up to timeout_ms for the images.
+  bool render(const RenderQuery& query, RenderOutput* output, int timeout_ms, std::string* why);
+  // Saves a map on the server, under its map_dir (`folder` empty: the map's name); `saved_to`
+  // gets the server-side folder.
+  bool save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
+                std::string* saved_to, std::string* why);
+  // Loads <map_dir>/<folder> on the server and serves it as `map_name`.
+  bool load_map(const std::string& map_name, const std::string& folder, int timeout_ms,
+                std::string* why);
+  // This client's name on fslam/requests (host, process and instance).
+  const std::string& id() const { return id_; }
+
   // Called on the client's listener thread for every pose the server publishes.
   void on_pose(std::function<void(const PoseUpdate&)> callback);
-  // Called on the listener thread for results that no open/close call is waiting for (frame
-  // errors and drops).
+  // Called on the listener thread for results addressed to this client that no call is waiting
+  // for: frame errors and drops of the sessions it opened or pushed frames to.
   void on_result(std::function<void(const ResultUpdate&)> callback);
   // Called on the listener thread for every status report of any session.
   void on_status(std::function<void(const StatusUpdate&)> callback);
@@ -102,18 +153,26 @@ class Client {
   std::uint32_t matched_servers() const;
 
  private:
+  struct Answer;
   void listen();
-  bool control(const std::string& session, const std::string& map_name, bool open, int timeout_ms,
-               std::string* why);
+  bool control(const std::string& session, const std::string& map_name, bool open, bool attach_only,
+               int timeout_ms, std::string* why);
+  // Sends `sample` with `writer` once a server matched, and waits for the result (client, id).
+  bool call(dds_entity_t writer, const void* sample, const std::string& client, std::uint64_t id,
+            const std::string& what, int timeout_ms, Answer* answer, std::string* why);
+  std::uint64_t new_request_id();
 
+  std::string id_;
   Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_, status_topic_;
-  Entity frame_writer_, pose_reader_, control_writer_, result_reader_, status_reader_, waitset_;
+  Entity requests_topic_, frame_writer_, pose_reader_, control_writer_, request_writer_;
+  Entity result_reader_, status_reader_, waitset_;
   std::mutex callback_mutex_;
   std::function<void(const PoseUpdate&)> pose_callback_;
   std::function<void(const ResultUpdate&)> result_callback_;
   std::function<void(const StatusUpdate&)> status_callback_;
   std::condition_variable result_arrived_;
-  std::map<std::uint64_t, ResultUpdate> awaited_;  // request id -> answer (filled when it comes)
+  std::map<std::pair<std::string, std::uint64_t>, std::unique_ptr<Answer>> awaited_;
+  std::set<std::string> addresses_;  // result `client` values meant for us: id_ and our sessions
   std::uint64_t next_request_ = 1ull << 62;  // apart from frame ids, which frame results echo
   std::atomic<bool> stop_{false};
   std::thread listener_;

@@ -1,13 +1,16 @@
 // The featureslam server: a component with an explicit lifecycle (configure -> activate ->
-// deactivate -> cleanup) that owns SLAM sessions and talks DDS (docs/protocol.md). Each session
-// runs tracking and mapping on their own threads, fed by a bounded frame queue; a full queue
-// drops the newest frame and says so in an error result — nothing accepted is lost silently.
+// deactivate -> cleanup) that owns maps and the SLAM sessions streaming into them, and talks DDS
+// (docs/protocol.md). Each session runs tracking and mapping on their own threads, fed by a
+// bounded frame queue; a full queue drops the newest frame and says so in an error result —
+// nothing accepted is lost silently. Render, save and load requests run on query threads against
+// the newest map version, so any number of clients can query any map while it is being built.
 #pragma once
 
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -21,18 +24,35 @@
 
 namespace fslam::server {
 
+inline core::PipelineConfig realtime_pipeline() {
+  core::PipelineConfig c;
+  c.realtime = true;
+  return c;
+}
+
 struct ServerConfig {
   std::string prefix = "fslam";                 // topic prefix of this deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
   std::size_t queue_capacity = 64;              // frames waiting per session
-  int status_period_ms = 1000;                  // fslam/status, per session
-  core::PipelineConfig pipeline;
+  int status_period_ms = 1000;                  // fslam/status, per session and idle map
+  // Persistence: maps live in <map_dir>/<name>/ (map_files.hpp). Empty: nothing is saved or
+  // loaded, and save / load requests are refused.
+  std::string map_dir;
+  bool load_maps_at_start = true;               // serve every map saved under map_dir
+  bool save_maps_at_shutdown = true;            // save every map changed since its last save
+  int query_threads = 1;                        // render / save / load requests in parallel
+  std::size_t query_queue_capacity = 16;        // requests waiting; more are refused as busy
+  std::uint32_t max_render_pixels = 4096 * 4096;
+  // Real-time mapping by default: a live stream must not build a backlog of keyframes that
+  // makes closing a session wait for it (core's default suits offline `fslam run`).
+  core::PipelineConfig pipeline = realtime_pipeline();
   bool is_valid(std::string* why = nullptr) const;
 };
 
 struct ServerStats {
   std::uint64_t frames_received = 0, frames_rejected = 0, frames_dropped = 0, poses_published = 0;
-  std::size_t sessions = 0;
+  std::uint64_t requests_answered = 0, requests_failed = 0;
+  std::size_t sessions = 0, maps = 0;
 };
 
 class Server {
@@ -40,34 +60,60 @@ class Server {
   Server();
   ~Server();
   bool configure(const ServerConfig& config, std::string* why);
-  // Joins the DDS domain and starts the ingest thread.
+  // Loads the saved maps (when configured), joins the DDS domain and starts the ingest and query
+  // threads.
   bool activate(std::string* why);
-  // Stops ingest, lets every session track what it accepted, and stops them.
+  // Stops ingest and queries, lets every session track what it accepted, stops the sessions and
+  // saves the changed maps (when configured).
   void deactivate();
   void cleanup();
   ServerStats stats() const;
+  // Where lifecycle messages go (map loaded / saved, failures); default: nowhere.
+  void set_log(std::function<void(const std::string&)> log);
 
  private:
+  struct MapEntry;
   struct Session;
+  struct QueuedFrame;
+  struct Query;
   void ingest();
+  void serve_queries();
   void handle_control(const fslam_proto_SessionControl& msg);
   void handle_frame(const fslam_proto_Frame& msg);
+  void accept_request(const fslam_proto_Request& msg);
+  void answer(const Query& query);
+  // Fills `result`, whose images point into `buffers` and `images`.
+  bool render(const Query& query, MapEntry& map, fslam_proto_Result* result,
+              std::vector<std::vector<std::uint8_t>>* buffers,
+              std::vector<fslam_proto_Image>* images, std::string* why);
+  bool save(MapEntry& map, const std::string& folder, std::string* why);
+  bool load(const std::string& name, const std::string& folder, std::string* why);
+  std::shared_ptr<MapEntry> find_map(const std::string& name) const;
   void publish_result(const char* client, std::uint64_t request_id, const std::string& map_name,
                       const std::string& error);
   void run_tracking(Session* session);
   void publish_status();
   void finish_session(Session* session);
+  void log(const std::string& message) const;
 
   ServerConfig config_;
   bool configured_ = false;
+  std::function<void(const std::string&)> log_;
   client::Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_;
-  client::Entity status_topic_, frame_reader_, control_reader_, pose_writer_, result_writer_;
-  client::Entity status_writer_, waitset_;
+  client::Entity status_topic_, requests_topic_, frame_reader_, control_reader_, request_reader_;
+  client::Entity pose_writer_, result_writer_, status_writer_, waitset_;
   std::thread ingest_thread_;
+  std::vector<std::thread> query_threads_;
   std::atomic<bool> stop_{false};
-  mutable std::mutex mutex_;
+  std::shared_ptr<const core::Rasterizer> query_rasterizer_;
+
+  mutable std::mutex mutex_;  // guards everything below
+  std::map<std::string, std::shared_ptr<MapEntry>> maps_;
   std::map<std::string, std::unique_ptr<Session>> sessions_;
   std::vector<std::thread> closers_;  // sessions being drained after a close
+  std::deque<std::unique_ptr<Query>> queries_;
+  std::condition_variable query_wake_;
+  bool queries_stopping_ = false;
   ServerStats stats_;
 };
 

@@ -1,0 +1,44 @@
+// A map on disk: the folder a server saves a map to and serves it again from after a restart.
+//   map.ply         the Gaussians (standard 3DGS PLY, core/io/gaussian_ply.hpp)
+//   poses.txt       "frame_id timestamp tx ty tz qx qy qz qw" per tracked frame, camera-to-world
+//   trajectory.txt  the same poses as a TUM trajectory, for evaluation tools
+//   camera.txt      "fx fy cx cy width height" of the camera the map was built with
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "fslam/core/geometry/pinhole_camera.hpp"
+#include "fslam/core/map/gaussian_map.hpp"
+
+namespace fslam::server {
+
+struct FramePose {
+  std::uint64_t frame_id = 0;
+  double timestamp = 0.0;  // seconds
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+};
+
+struct StoredMap {
+  std::shared_ptr<const core::GaussianMap> gaussians;
+  core::PinholeCamera camera;     // width 0 when no frame was ever seen
+  std::vector<FramePose> poses;   // in processing order
+};
+
+// Writes the folder next to `dir` first and renames it into place, so that a crash or a full
+// disk never leaves half a map where a whole one was.
+bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* why);
+bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why);
+// True when `dir` holds a saved map (its map.ply).
+bool is_map_folder(const std::string& dir);
+
+// The folder a request names, under the server's map_dir: a relative path without "." or ".."
+// components (clients never reach outside map_dir). Empty `relative` means `fallback`.
+bool resolve_map_folder(const std::string& map_dir, const std::string& relative,
+                        const std::string& fallback, std::string* folder, std::string* why);
+
+}  // namespace fslam::server
