@@ -96,24 +96,55 @@ run_tests() {
   ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 900
 }
 
+# The main job, end to end over DDS: a server on the loopback profile, the synthetic room
+# streamed to it at 30 Hz, renders requested from poses of the trajectory, the map saved, and the
+# server stopped cleanly (it saves its maps on the way out).
 run_demo() {
-  local fslam="$BUILD_DIR/bin/fslam"
-  mkdir -p "$OUT"
-  log "main job: built-in synthetic room -> $OUT"
+  local fslam="$BUILD_DIR/bin/fslam" server="$BUILD_DIR/bin/fslam-server"
+  local prefix="demo$$" server_pid=""
+  rm -rf "$OUT/maps" "$OUT/renders"
+  mkdir -p "$OUT/renders"
+  log "main job: built-in synthetic room through the service -> $OUT"
   "$fslam" version
   "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
   "$fslam" info --dataset "$OUT/sequence"
-  "$fslam" run --dataset "$OUT/sequence" --out "$OUT/slam"
-  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/slam/trajectory.txt" \
+
+  log "server (prefix $prefix, maps in $OUT/maps, log $OUT/server.log)"
+  "$server" --prefix "$prefix" --map-dir "$OUT/maps" >"$OUT/server.log" 2>&1 &
+  server_pid=$!
+  # The server is ours: stop it whatever happens below.
+  trap '[[ -n "$server_pid" ]] && kill -TERM "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null' EXIT
+
+  log "stream the sequence at 30 Hz (JPEG colour, PNG depth)"
+  "$fslam" stream --dataset "$OUT/sequence" --prefix "$prefix" --session demo --map room \
+    --rate 30 --out "$OUT/trajectory.txt" | tee "$OUT/stream.txt"
+
+  log "renders from the server, at tracked poses of the trajectory"
+  for frame in 0 75 150 225 299; do
+    "$fslam" render --map room --frame "$frame" --prefix "$prefix" \
+      --out "$OUT/renders/frame_$(printf %03d "$frame").png"
+  done
+  "$fslam" status --prefix "$prefix" | tee "$OUT/status.txt"
+  "$fslam" save-map --map room --prefix "$prefix"
+
+  log "stop the server"
+  kill -TERM "$server_pid"
+  wait "$server_pid"
+  server_pid=""
+  trap - EXIT
+  cat "$OUT/server.log"
+
+  "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/trajectory.txt" \
     --json "$OUT/trajectory_eval.json" --plot "$OUT/trajectory.png"
   log "outputs"
   echo "sequence:        $OUT/sequence (TUM layout: rgb/, depth/, labels/, groundtruth.txt)"
-  echo "trajectory:      $OUT/slam/trajectory.txt (tracked, TUM format)"
-  echo "map:             $OUT/slam/map.ply (3DGS PLY, opens in common splat viewers)"
-  echo "renders:         $OUT/slam/renders/ (held-out frames: input vs rendered colour, depth, normals)"
-  echo "metrics:         $OUT/slam/metrics.json (ATE, held-out PSNR/SSIM/depth L1, timings, memory)"
+  echo "trajectory:      $OUT/trajectory.txt (poses the server sent back, TUM format)"
+  echo "stream report:   $OUT/stream.txt (poses received, ATE, frame-to-pose latency by stage)"
+  echo "renders:         $OUT/renders/ (colour, depth, normals, opacity from the served map)"
+  echo "map:             $OUT/maps/room/ (map.ply: 3DGS PLY; poses, camera; served again on restart)"
   echo "trajectory plot: $OUT/trajectory.png (tracked vs ground truth)"
   echo "evaluation:      $OUT/trajectory_eval.json (ATE, RPE)"
+  echo "server:          $OUT/server.log, $OUT/status.txt"
 }
 
 [[ $INSTALL -eq 1 ]] && install_packages

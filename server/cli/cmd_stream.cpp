@@ -36,20 +36,26 @@ struct StreamArgs {
 
 // Frame-to-pose latency as the client sees it (push_frame called -> pose received, one clock)
 // and where the server says its share went; the rest is encoding, transport and publishing.
-void print_latency(const std::map<std::uint64_t, std::chrono::steady_clock::time_point>& sent,
-                   const std::map<std::uint64_t, std::chrono::steady_clock::time_point>& arrived,
+using TimePoint = std::chrono::steady_clock::time_point;
+struct SendTimes {
+  TimePoint encode_start, written;  // push_frame called, push_frame returned (encoded and written)
+};
+
+void print_latency(const std::map<std::uint64_t, SendTimes>& sent,
+                   const std::map<std::uint64_t, TimePoint>& arrived,
                    const std::map<std::uint64_t, client::PoseUpdate>& poses) {
-  std::vector<double> total, decode, queue, track, rest;
+  std::vector<double> total, encode, decode, queue, track, rest;
+  auto ms = [](TimePoint a, TimePoint b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   for (const auto& [id, t] : arrived) {
     const auto s = sent.find(id);
     if (s == sent.end()) continue;
     const client::PoseUpdate& p = poses.at(id);
-    const double ms = std::chrono::duration<double, std::milli>(t - s->second).count();
-    total.push_back(ms);
+    total.push_back(ms(s->second.encode_start, t));
+    encode.push_back(ms(s->second.encode_start, s->second.written));
     decode.push_back(p.decode_ms);
     queue.push_back(p.queue_ms);
     track.push_back(p.track_ms);
-    rest.push_back(ms - p.decode_ms - p.queue_ms - p.track_ms);
+    rest.push_back(ms(s->second.written, t) - p.decode_ms - p.queue_ms - p.track_ms);
   }
   if (total.empty()) return;
   auto row = [](const char* name, const std::vector<double>& v) {
@@ -57,10 +63,11 @@ void print_latency(const std::map<std::uint64_t, std::chrono::steady_clock::time
   };
   std::printf("latency per frame, ms (%zu frames)      p50      p99\n", total.size());
   row("frame -> pose (client clock)", total);
+  row("  client: encode + write", encode);
   row("  server: decode", decode);
   row("  server: queue", queue);
   row("  server: track", track);
-  row("  encode + transport + publish", rest);
+  row("  DDS transport + publish (rest)", rest);
 }
 
 int run_stream(const StreamArgs& args) {
@@ -83,7 +90,8 @@ int run_stream(const StreamArgs& args) {
   client::Client client(copts);
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> poses;
-  std::map<std::uint64_t, std::chrono::steady_clock::time_point> sent, arrived;
+  std::map<std::uint64_t, SendTimes> sent;
+  std::map<std::uint64_t, TimePoint> arrived;
   std::atomic<std::size_t> errors{0};
   client.on_pose([&](const client::PoseUpdate& p) {
     if (p.session != args.session) return;
@@ -137,11 +145,16 @@ int run_stream(const StreamArgs& args) {
       input.gt_rotation[2] = q.z();
       input.gt_rotation[3] = q.w();
     }
+    const TimePoint encode_start = std::chrono::steady_clock::now();
     {
       std::lock_guard<std::mutex> lock(mutex);
-      sent[input.frame_id] = std::chrono::steady_clock::now();  // before encoding: latency includes it
+      sent[input.frame_id].encode_start = encode_start;  // a pose may arrive before push returns
     }
     if (!client.push_frame(args.session, input, &why)) return fail(why);
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      sent[input.frame_id].written = std::chrono::steady_clock::now();
+    }
     progress.update(i + 1);
   }
   progress.finish();
