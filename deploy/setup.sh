@@ -6,7 +6,8 @@
 #   bash deploy/setup.sh --demo    # install, build, run the main job on the built-in default
 #   bash deploy/setup.sh --test    # install, build, run every test (what .ci/run calls)
 #
-# Options: --build-dir DIR (default build)  --jobs N (default: all cores)
+# Options: --install-only (the packages, nothing else; used by deploy/docker/Dockerfile)
+#          --build-dir DIR (default build)  --jobs N (default: all cores)
 #          --cuda AUTO|ON|OFF (default AUTO: the CUDA backend is built when nvcc is found)
 #          --out DIR (demo output, default out/demo)  --no-install (skip apt)
 set -euo pipefail
@@ -19,13 +20,14 @@ CUDA=AUTO
 OUT="$ROOT/out/demo"
 INSTALL=1
 
-usage() { sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
 
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --demo) MODE=demo ;;
     --test) MODE=test ;;
     --build-only) MODE=build ;;
+    --install-only) MODE=install ;;
     --build-dir) BUILD_DIR="$(realpath -m "$2")"; shift ;;
     --jobs) JOBS="$2"; shift ;;
     --cuda) CUDA="$2"; shift ;;
@@ -148,6 +150,7 @@ run_demo() {
 }
 
 [[ $INSTALL -eq 1 ]] && install_packages
+[[ "$MODE" == install ]] && exit 0
 build
 case "$MODE" in
   test) run_tests ;;
