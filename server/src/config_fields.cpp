@@ -109,25 +109,28 @@ class Section {
 
   template <class S, class T>
   void add(const char* name, T S::*member) const {
-    const Access access = access_;
     fields_->push_back(
         {key(name), Codec<T>::kTypeName,
-         [access, member](ServerConfig* c, const std::string& text, std::string* why) {
+         [access = access_, member](ServerConfig* c, const std::string& text, std::string* why) {
            return Codec<T>::parse(text, &(access(*c).*member), why);
          },
-         [access, member](const ServerConfig& c) { return Codec<T>::format(access(c).*member); }});
+         [access = access_, member](const ServerConfig& c) {
+           return Codec<T>::format(access(c).*member);
+         }});
   }
 
   template <class S, class E>
   void add(const char* name, E S::*member, const EnumNames<E>& names) const {
-    const Access access = access_;
     const EnumCodec<E> codec{names};
     fields_->push_back(
         {key(name), codec.type_name(),
-         [access, member, codec](ServerConfig* c, const std::string& text, std::string* why) {
+         [access = access_, member, codec](ServerConfig* c, const std::string& text,
+                                           std::string* why) {
            return codec.parse(text, &(access(*c).*member), why);
          },
-         [access, member, codec](const ServerConfig& c) { return codec.format(access(c).*member); }});
+         [access = access_, member, codec](const ServerConfig& c) {
+           return codec.format(access(c).*member);
+         }});
   }
 
  private:

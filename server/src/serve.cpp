@@ -16,10 +16,10 @@ void on_signal(int) { g_stop = 1; }
 }  // namespace
 
 int serve_until_signal(const ServerConfig& config) {
-  // The whole configuration, so a log shows what a session ran with, whatever layers set it.
-  std::fprintf(stderr, "fslam-server: effective configuration:\n%s",
-               effective_config_yaml(config).c_str());
   try {
+    // The whole configuration, so a log shows what a session ran with, whatever layers set it.
+    std::fprintf(stderr, "fslam-server: effective configuration:\n%s",
+                 effective_config_yaml(config).c_str());
     Server server;
     std::string why;
     if (!server.configure(config, &why) || !server.activate(&why)) {

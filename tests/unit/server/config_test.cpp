@@ -137,6 +137,7 @@ TEST(ConfigFields, BadValuesNameTheKey) {
 TEST(ConfigFile, NestedMapsSetDottedKeys) {
   const std::string path = write_file("nested.yaml", R"(# a sparse override
 realtime: true
+tracker.keyframe.translation: 0.1   # dotted keys work at any level
 tracker:
   preprocess:
     stride: 4        # pixels
@@ -161,6 +162,7 @@ server:
   EXPECT_FALSE(config.pipeline.tracker.preprocess.depth_noise.enabled);
   EXPECT_FLOAT_EQ(config.pipeline.tracker.preprocess.depth_noise.a, 0.002f);
   EXPECT_EQ(config.pipeline.tracker.gicp.kernel, core::RobustKernel::cauchy);
+  EXPECT_DOUBLE_EQ(config.pipeline.tracker.keyframe.translation, 0.1);
   EXPECT_DOUBLE_EQ(config.pipeline.mapper.loss.rgb_ssim, 0.3);
   EXPECT_FLOAT_EQ(config.pipeline.mapper.learning_rates.means, 2e-4f);
   EXPECT_EQ(config.prefix, "lab");
