@@ -3,14 +3,11 @@
 #include <CLI/CLI.hpp>
 
 #include "fslam/server/serve_options.hpp"
-#include "fslam/server/server.hpp"
 
 int main(int argc, char** argv) {
   CLI::App app{"featureslam server: SLAM sessions over Cyclone DDS"};
-  fslam::server::ServerConfig config;
-  int domain = -1;
-  fslam::server::add_server_options(&app, &config, &domain);
+  fslam::server::ServeOptions options;
+  fslam::server::add_server_options(&app, &options);
   CLI11_PARSE(app, argc, argv);
-  if (domain >= 0) config.domain = static_cast<dds_domainid_t>(domain);
-  return fslam::server::serve_until_signal(config);
+  return fslam::server::serve(options);
 }

@@ -37,6 +37,7 @@
 #include "fslam/core/mapping/image_losses.hpp"
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "fslam/server/backend_factory.hpp"
+#include "fslam/server/config_options.hpp"
 
 namespace fslam::cli {
 namespace {
@@ -46,56 +47,17 @@ using Clock = std::chrono::steady_clock;
 
 struct RunArgs {
   DatasetArgs dataset;
+  server::ConfigOptions config;  // --config, --set and the flags that are shorthands for one key
   std::string out;
   int refine = 0;
   double realtime_fps = 0.0;  // 0: as fast as it can
   int threads = 2;
-  int iterations = -1;        // < 0: the config default
-  int sh_degree = 0;
   std::string resume;
   int renders = 4;
   std::string backend = "auto";
   int eval_every = 8;
-  double prune_tracking = -1, prune_mapping = -1;  // < 0: the config defaults
-  double training_scale = -1;
-  int insert_stride = -1;
-  std::vector<std::string> overrides;  // key=value for the mapper's numeric settings
   bool gt_poses = false;
 };
-
-// `--set key=value` for the mapper's numeric settings, the same names as in MapperConfig.
-bool apply_override(const std::string& item, core::MapperConfig* c, std::string* why) {
-  const auto eq = item.find('=');
-  if (eq == std::string::npos) return core::fail(why, "--set expects key=value, got '" + item + "'");
-  const std::string key = item.substr(0, eq);
-  double value = 0;
-  try {
-    value = std::stod(item.substr(eq + 1));
-  } catch (const std::exception&) {
-    return core::fail(why, "--set " + key + ": not a number");
-  }
-  core::MappingLossWeights& l = c->loss;
-  const std::vector<std::pair<const char*, double*>> doubles = {
-      {"loss.rgb_l1", &l.rgb_l1}, {"loss.rgb_ssim", &l.rgb_ssim}, {"loss.feature_l1", &l.feature_l1},
-      {"loss.depth_l1", &l.depth_l1}, {"loss.depth_pcc", &l.depth_pcc}, {"loss.normal", &l.normal},
-      {"loss.erank_lambda_0", &l.erank_lambda_0}, {"loss.erank_lambda_max", &l.erank_lambda_max},
-      {"loss.erank_ramp_steps", &l.erank_ramp_steps}, {"loss.thin", &l.thin},
-      {"newest_keyframe_probability", &c->newest_keyframe_probability},
-      {"mapping_keyframe_translation", &c->mapping_keyframe_translation}};
-  const std::vector<std::pair<const char*, float*>> floats = {
-      {"new_alpha", &c->new_alpha}, {"new_depth_margin", &c->new_depth_margin},
-      {"initial_opacity", &c->initial_opacity}, {"initial_scale_factor", &c->initial_scale_factor},
-      {"initial_thickness", &c->initial_thickness}, {"max_scale", &c->max_scale},
-      {"min_opacity", &c->min_opacity}, {"filter_3d_factor", &c->filter_3d_factor},
-      {"lr.means", &c->learning_rates.means},
-      {"lr.sh_dc", &c->learning_rates.sh_dc}, {"lr.opacity", &c->learning_rates.opacity},
-      {"lr.log_scales", &c->learning_rates.log_scales}, {"lr.rotations", &c->learning_rates.rotations}};
-  for (const auto& [name, field] : doubles)
-    if (key == name) return (*field = value, true);
-  for (const auto& [name, field] : floats)
-    if (key == name) return (*field = static_cast<float>(value), true);
-  return core::fail(why, "--set: unknown mapper setting '" + key + "'");
-}
 
 double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
@@ -153,17 +115,18 @@ int run_slam(const RunArgs& args) {
   if (!rasterizer) return fail(why);
   if (!notice.empty()) std::fprintf(stderr, "%s\n", notice.c_str());
 
-  core::PipelineConfig config;
-  config.realtime = args.realtime_fps > 0.0;
-  config.mapper.sh_degree = args.sh_degree;
-  config.mapper.feature_dim = 0;  // no feature encoder yet: features train when one is configured
-  if (args.iterations >= 0) config.mapper.iterations_per_keyframe = args.iterations;
-  if (args.prune_tracking >= 0) config.mapper.prune_percentile_tracking = args.prune_tracking;
-  if (args.prune_mapping >= 0) config.mapper.prune_percentile_mapping = args.prune_mapping;
-  if (args.training_scale > 0) config.mapper.training_scale = args.training_scale;
-  if (args.insert_stride > 0) config.mapper.insert_stride = args.insert_stride;
-  for (const std::string& item : args.overrides)
-    if (!apply_override(item, &config.mapper, &why)) return fail(why);
+  server::ServerConfig layered;  // run reads its pipeline part; server.* keys do not apply
+  layered.pipeline = core::PipelineConfig{};  // offline by default (the server's is real-time)
+  // No feature encoder yet, so run's own default is no features (a --config file may differ).
+  layered.pipeline.mapper.feature_dim = 0;
+  if (!args.config.apply(&layered, &why)) return fail(why);
+  core::PipelineConfig config = layered.pipeline;
+  if (args.realtime_fps > 0.0) {
+    config.realtime = true;
+  } else if (config.realtime) {
+    return fail("realtime is set but fslam run needs the rate to pace the dataset at: add "
+                "--realtime FPS");
+  }
   if (!config.is_valid(&why)) return fail("config: " + why);
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(args.threads));
@@ -425,6 +388,7 @@ void add_run_command(CLI::App& root, CommandList* commands) {
              "map.ply, metrics.json and renders");
   auto args = std::make_shared<RunArgs>();
   add_dataset_options(app, &args->dataset);
+  server::add_config_options(app, &args->config);
   app->add_option("--out", args->out, "Output folder")->required();
   app->add_option("--refine", args->refine, "Post-trajectory refinement steps (0 = off)")
       ->capture_default_str();
@@ -433,10 +397,10 @@ void add_run_command(CLI::App& root, CommandList* commands) {
                   "gets the time that is left (default: as fast as it can)");
   app->add_option("--threads", args->threads, "Threads for rendering and optimisation")
       ->capture_default_str();
-  app->add_option("--iterations", args->iterations,
-                  "Gradient steps per keyframe (default: the mapper config's)");
-  app->add_option("--sh-degree", args->sh_degree, "Spherical-harmonics degree 0-3")
-      ->capture_default_str();
+  server::add_setting_option(app, "--iterations", "mapper.iterations_per_keyframe",
+                             "Gradient steps per keyframe", &args->config);
+  server::add_setting_option(app, "--sh-degree", "mapper.sh_degree",
+                             "Spherical-harmonics degree 0-3", &args->config);
   app->add_option("--resume", args->resume, "Start from a saved map.ply");
   app->add_option("--renders", args->renders, "Held-out frames rendered beside the input")
       ->capture_default_str();
@@ -445,19 +409,19 @@ void add_run_command(CLI::App& root, CommandList* commands) {
   app->add_option("--eval-every", args->eval_every,
                   "Every n-th non-keyframe frame is held out for evaluation")
       ->capture_default_str();
-  app->add_option("--prune-tracking", args->prune_tracking,
-                  "Importance-pruning percentile on tracking keyframes, 0..1 (default 0.10)");
-  app->add_option("--prune-mapping", args->prune_mapping,
-                  "Importance-pruning percentile on mapping keyframes, 0..1 (default 0.30)");
-  app->add_option("--training-scale", args->training_scale,
-                  "Training renders at this fraction of the input size (default 0.25)");
-  app->add_option("--insert-stride", args->insert_stride,
-                  "Pixel stride of new Gaussians on the training image (default 1)");
+  server::add_setting_option(app, "--prune-tracking", "mapper.prune_percentile_tracking",
+                             "Importance-pruning percentile on tracking keyframes, 0..1",
+                             &args->config);
+  server::add_setting_option(app, "--prune-mapping", "mapper.prune_percentile_mapping",
+                             "Importance-pruning percentile on mapping keyframes, 0..1",
+                             &args->config);
+  server::add_setting_option(app, "--training-scale", "mapper.training_scale",
+                             "Training renders at this fraction of the input size", &args->config);
+  server::add_setting_option(app, "--insert-stride", "mapper.insert_stride",
+                             "Pixel stride of new Gaussians on the training image", &args->config);
   app->add_flag("--ground-truth-poses", args->gt_poses,
                 "Map and render at the ground-truth poses (tracking still runs and is scored): "
                 "map quality without tracking drift");
-  app->add_option("--set", args->overrides,
-                  "Override a numeric mapper setting, key=value (e.g. loss.erank_lambda_max=0)");
   commands->push_back({app, [args] { return run_slam(*args); }});
 }
 

@@ -17,19 +17,16 @@
 #include "fslam/core/eval/ate.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/core/tracking/tracker.hpp"
+#include "fslam/server/config_options.hpp"
 
 namespace fslam::cli {
 namespace {
 
 struct TrackArgs {
   DatasetArgs dataset;
+  server::ConfigOptions config;  // --config, --set and the flags that are shorthands for one key
   std::string out;
   int threads = 1;
-  int stride = 0;          // 0: the config default
-  float voxel = -1.0f;     // < 0: the config default
-  bool constant_velocity = false;
-  float max_depth = -1.0f;  // < 0: the config default
-  bool no_depth_noise = false;
 };
 
 struct StageStats {
@@ -51,13 +48,10 @@ int run_track(const TrackArgs& args) {
   if (!dataset) return fail(why);
   if (args.threads < 1) return fail("--threads must be >= 1");
 
-  core::TrackerConfig config;
-  config.parallel = args.threads > 1;
-  if (args.stride > 0) config.preprocess.stride = args.stride;
-  if (args.voxel >= 0.0f) config.preprocess.voxel_size = args.voxel;
-  config.constant_velocity = args.constant_velocity;
-  if (args.max_depth > 0.0f) config.preprocess.max_depth = args.max_depth;
-  if (args.no_depth_noise) config.preprocess.depth_noise.enabled = false;
+  server::ServerConfig layered;  // track reads its tracker part; other keys do not apply
+  if (!args.config.apply(&layered, &why)) return fail(why);
+  core::TrackerConfig config = layered.pipeline.tracker;
+  if (args.threads > 1) config.parallel = true;
   if (!config.is_valid(&why)) return fail("tracker config: " + why);
   // core has no hidden thread pools: the caller decides how many threads TBB may use.
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
@@ -139,22 +133,28 @@ void add_track_command(CLI::App& root, CommandList* commands) {
                "prints timings and ATE when ground truth exists");
   auto args = std::make_shared<TrackArgs>();
   add_dataset_options(app, &args->dataset);
+  server::add_config_options(app, &args->config);
   app->add_option("--out", args->out, "Trajectory to write (TUM format, camera-to-world)")
       ->required();
-  app->add_option("--threads", args->threads, "Threads for the GICP reduction (1 = serial)")
+  app->add_option("--threads", args->threads,
+                  "Threads for the GICP reduction (1 = serial; > 1 sets tracker.parallel)")
       ->capture_default_str();
-  app->add_option("--stride", args->stride, "Image-lattice stride of the source points "
-                                            "(default: the tracker config's)");
-  app->add_option("--voxel", args->voxel, "Voxel size of the source points in metres, 0 = off "
-                                          "(default: the tracker config's)");
-  app->add_option("--max-depth", args->max_depth, "Depth beyond this many metres is ignored "
-                                                  "(default: the tracker config's)");
-  app->add_flag("--constant-velocity", args->constant_velocity,
-                "Start each registration from the constant-velocity prediction instead of the "
-                "last pose (docs/tracking.md says why it is off by default)");
-  app->add_flag("--no-depth-noise", args->no_depth_noise,
-                "Give every point the unit-disc covariance instead of scaling it by the depth "
-                "sensor's noise at its depth (the scale-free GICP of earlier versions)");
+  server::add_setting_option(app, "--stride", "tracker.preprocess.stride",
+                             "Image-lattice stride of the source points", &args->config);
+  server::add_setting_option(app, "--voxel", "tracker.preprocess.voxel_size",
+                             "Voxel size of the source points in metres, 0 = off", &args->config);
+  server::add_setting_option(app, "--max-depth", "tracker.preprocess.max_depth",
+                             "Depth beyond this many metres is ignored", &args->config);
+  server::add_setting_flag(app, "--constant-velocity", "tracker.constant_velocity", "true",
+                           "Start each registration from the constant-velocity prediction instead "
+                           "of the last pose (docs/tracking.md says why it is off by default)",
+                           &args->config);
+  server::add_setting_flag(app, "--no-depth-noise", "tracker.preprocess.depth_noise.enabled",
+                           "false",
+                           "Give every point the unit-disc covariance instead of scaling it by the "
+                           "depth sensor's noise at its depth (the scale-free GICP of earlier "
+                           "versions)",
+                           &args->config);
   commands->push_back({app, [args] { return run_track(*args); }});
 }
 

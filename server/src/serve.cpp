@@ -5,6 +5,8 @@
 
 #include <CLI/CLI.hpp>
 
+#include "fslam/server/config_fields.hpp"
+#include "fslam/server/serve_options.hpp"
 #include "fslam/server/server.hpp"
 
 namespace fslam::server {
@@ -15,6 +17,9 @@ void on_signal(int) { g_stop = 1; }
 
 int serve_until_signal(const ServerConfig& config) {
   try {
+    // The whole configuration, so a log shows what a session ran with, whatever layers set it.
+    std::fprintf(stderr, "fslam-server: effective configuration:\n%s",
+                 effective_config_yaml(config).c_str());
     Server server;
     server.set_log([](const std::string& m) { std::fprintf(stderr, "fslam-server: %s\n", m.c_str()); });
     std::string why;
@@ -49,18 +54,37 @@ int serve_until_signal(const ServerConfig& config) {
   return 0;
 }
 
-void add_server_options(CLI::App* app, ServerConfig* config, int* domain) {
-  app->add_option("--prefix", config->prefix, "Topic prefix")->capture_default_str();
-  app->add_option("--domain", *domain, "DDS domain id (default: Cyclone's default)");
-  app->add_option("--queue", config->queue_capacity, "Frames queued per session before dropping")
-      ->capture_default_str();
-  app->add_option("--map-dir", config->map_dir,
-                  "Keep maps here: serve the saved ones at start, save changed ones at shutdown");
-  app->add_option("--query-threads", config->query_threads, "Render / save / load requests in parallel")
-      ->capture_default_str();
-  app->add_option("--status-period", config->status_period_ms,
-                  "Milliseconds between status reports per session")
-      ->capture_default_str();
+bool ServeOptions::resolve(ServerConfig* config_out, std::string* why) const {
+  ServerConfig resolved;
+  if (!config.apply(&resolved, why) || !resolved.is_valid(why)) return false;
+  if (domain >= 0) resolved.domain = static_cast<dds_domainid_t>(domain);
+  *config_out = resolved;
+  return true;
+}
+
+void add_server_options(CLI::App* app, ServeOptions* options) {
+  add_config_options(app, &options->config);
+  add_setting_option(app, "--prefix", "server.prefix", "Topic prefix", &options->config);
+  app->add_option("--domain", options->domain, "DDS domain id (default: Cyclone's default)");
+  add_setting_option(app, "--queue", "server.queue_capacity",
+                     "Frames queued per session before dropping", &options->config);
+  add_setting_option(app, "--map-dir", "server.map_dir",
+                     "Keep maps here: serve the saved ones at start, save changed ones at shutdown",
+                     &options->config);
+  add_setting_option(app, "--query-threads", "server.query_threads",
+                     "Render / save / load requests answered in parallel", &options->config);
+  add_setting_option(app, "--status-period", "server.status_period_ms",
+                     "Milliseconds between status reports per session", &options->config);
+}
+
+int serve(const ServeOptions& options) {
+  ServerConfig config;
+  std::string why;
+  if (!options.resolve(&config, &why)) {
+    std::fprintf(stderr, "fslam-server: error: %s\n", why.c_str());
+    return 1;
+  }
+  return serve_until_signal(config);
 }
 
 }  // namespace fslam::server

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <future>
 #include <mutex>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -122,6 +123,22 @@ TEST_F(Service, StreamReceivesEveryPoseWithInProcessAccuracy) {
   ASSERT_GT(in_process, 0.0);
   EXPECT_LT(streamed, 1.5 * in_process + 1e-4) << "streamed " << streamed << " m, in process "
                                                << in_process << " m";
+}
+
+// The server states every setting it runs with before it serves.
+TEST_F(Service, ServerPrintsItsEffectiveConfigurationFirst) {
+  std::string log;
+  for (int i = 0; i < 300 && log.find("serving on") == std::string::npos; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    std::stringstream text;
+    text << std::ifstream(dir_ + "/server.log").rdbuf();
+    log = text.str();
+  }
+  const auto config = log.find("effective configuration:\n");
+  ASSERT_NE(config, std::string::npos) << log;
+  EXPECT_NE(log.find("\nserver:\n  prefix: " + prefix_ + "\n"), std::string::npos) << log;
+  EXPECT_NE(log.find("\n    kernel: huber\n"), std::string::npos) << log;
+  EXPECT_LT(config, log.find("serving on")) << log;
 }
 
 // Bad input gets an error result and the server keeps serving.

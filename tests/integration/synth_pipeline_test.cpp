@@ -138,15 +138,49 @@ TEST_F(SynthPipeline, RunRejectsBadArgumentsClearly) {
             0);
   EXPECT_NE(err.find("nope"), std::string::npos) << err;
   EXPECT_NE(run_command(fslam_bin() + " run --dataset " + dir_ + " --out " + dir_ +
-                            "/../x --set loss.unknown=1",
+                            "/../x --set loss.erank_lambda_max=0",
                         &out, &err),
             0);
-  EXPECT_NE(err.find("unknown mapper setting"), std::string::npos) << err;
+  EXPECT_NE(err.find("unknown setting 'loss.erank_lambda_max' (did you mean "
+                     "mapper.loss.erank_lambda_max?)"),
+            std::string::npos)
+      << err;
+  EXPECT_NE(run_command(fslam_bin() + " run --dataset " + dir_ + " --out " + dir_ +
+                            "/../x --set realtime=true",
+                        &out, &err),
+            0);
+  EXPECT_NE(err.find("--realtime FPS"), std::string::npos) << err;
   EXPECT_NE(run_command(fslam_bin() + " run --dataset " + dir_ + " --out " + dir_ +
                             "/../x --backend cuda",
                         &out, &err),
             0);
   EXPECT_NE(err.find("cuda"), std::string::npos) << err;
+}
+
+// Settings layer as docs/configuration.md says: defaults < --config < --set < dedicated flags,
+// validated once at the end, in `fslam track` and `fslam run` alike.
+TEST_F(SynthPipeline, TrackAndRunLayerConfigFileSetAndFlags) {
+  const std::string file = dir_ + "/../stride0.yaml";
+  std::ofstream(file) << "tracker:\n  preprocess:\n    stride: 0\n";
+  const std::string track =
+      fslam_bin() + " track --dataset " + dir_ + " --frames 0:5 --out " + dir_ + "/../t.txt";
+  std::string out, err;
+  EXPECT_EQ(run_command(track + " --config " + file, &out, &err), 1);
+  EXPECT_NE(err.find("stride"), std::string::npos) << err;
+  EXPECT_EQ(run_command(track + " --config " + file + " --stride 8", &out, &err), 0) << err;
+  EXPECT_EQ(run_command(track + " --set tracker.preprocess.stride=0", &out, &err), 1);
+  EXPECT_EQ(run_command(track + " --set tracker.preprocess.stride=0 --stride 8", &out, &err), 0)
+      << err;
+  EXPECT_EQ(run_command(track + " --config " + dir_ + "/../missing.yaml", &out, &err), 1);
+  EXPECT_NE(err.find("missing.yaml: cannot read"), std::string::npos) << err;
+
+  const std::string preset = std::string(FSLAM_TEST_CONFIGS_DIR) + "/presets/kinect_v1.yaml";
+  EXPECT_EQ(run_command(fslam_bin() + " run --dataset " + dir_ + " --frames 0:5 --renders 0 --out " +
+                            dir_ + "/../layered --config " + preset +
+                            " --set mapper.loss.erank_lambda_max=0 --iterations 2",
+                        &out, &err),
+            0)
+      << out << err;
 }
 
 TEST(Cli, HelpAndUsageErrors) {

@@ -117,8 +117,8 @@ class Server {
   ServerStats stats_;
 };
 
-// Runs a server until SIGINT or SIGTERM, reporting on stderr; returns the exit code. Shared by
-// `fslam-server` and `fslam serve`.
+// Prints the effective configuration, then runs a server until SIGINT or SIGTERM, reporting on
+// stderr; returns the exit code. Shared by `fslam-server` and `fslam serve` (serve_options.hpp).
 int serve_until_signal(const ServerConfig& config);
 
 }  // namespace fslam::server

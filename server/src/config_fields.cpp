@@ -1,0 +1,436 @@
+#include "fslam/server/config_fields.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <string_view>
+#include <system_error>
+#include <type_traits>
+#include <utility>
+
+#include <yaml-cpp/yaml.h>
+
+#include "fslam/core/error.hpp"
+
+namespace fslam::server {
+namespace {
+
+using core::fail;
+
+// ---- text <-> value, one codec per supported type ---------------------------------------------
+
+template <class T, class Enable = void>
+struct Codec;
+
+template <>
+struct Codec<bool> {
+  static constexpr const char* kTypeName = "BOOL";
+  static bool parse(const std::string& text, bool* value, std::string* why) {
+    if (text != "true" && text != "false")
+      return fail(why, "expected true or false, got '" + text + "'");
+    *value = text == "true";
+    return true;
+  }
+  static std::string format(bool value) { return value ? "true" : "false"; }
+};
+
+template <>
+struct Codec<std::string> {
+  static constexpr const char* kTypeName = "TEXT";
+  static bool parse(const std::string& text, std::string* value, std::string*) {
+    *value = text;
+    return true;
+  }
+  static std::string format(const std::string& value) { return value; }
+};
+
+// Integers and floating point through from_chars / to_chars: the whole text must parse, and
+// to_chars' shortest form parses back to the identical value (a printed config re-loads exactly).
+template <class T>
+struct Codec<T, std::enable_if_t<std::is_arithmetic_v<T> && !std::is_same_v<T, bool>>> {
+  static constexpr const char* kTypeName =
+      std::is_floating_point_v<T> ? "FLOAT" : (std::is_signed_v<T> ? "INT" : "UINT");
+  static bool parse(const std::string& text, T* value, std::string* why) {
+    const char* expected = std::is_floating_point_v<T> ? "a number"
+                           : std::is_signed_v<T>       ? "an integer"
+                                                       : "a non-negative integer";
+    T parsed{};
+    const char* end = text.data() + text.size();
+    const auto [ptr, ec] = std::from_chars(text.data(), end, parsed);
+    if (ec == std::errc::result_out_of_range) return fail(why, "'" + text + "' is out of range");
+    if (ec != std::errc() || ptr != end || text.empty())
+      return fail(why, std::string("expected ") + expected + ", got '" + text + "'");
+    *value = parsed;
+    return true;
+  }
+  static std::string format(T value) {
+    char buffer[64];
+    const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+    return std::string(buffer, result.ptr);
+  }
+};
+
+// Enums by name; the names live here, not in core (core has no text formats).
+template <class E>
+using EnumNames = std::vector<std::pair<E, std::string>>;
+
+template <class E>
+struct EnumCodec {
+  EnumNames<E> names;
+  std::string type_name() const {
+    std::string joined;
+    for (const auto& [value, name] : names) joined += (joined.empty() ? "" : "|") + name;
+    return joined;
+  }
+  bool parse(const std::string& text, E* value, std::string* why) const {
+    for (const auto& [v, name] : names)
+      if (name == text) return (*value = v, true);
+    return fail(why, "expected one of " + type_name() + ", got '" + text + "'");
+  }
+  std::string format(E value) const {
+    for (const auto& [v, name] : names)
+      if (v == value) return name;
+    return std::to_string(static_cast<long long>(value));  // out of range: is_valid says so
+  }
+};
+
+const EnumNames<core::RobustKernel> kRobustKernels = {{core::RobustKernel::none, "none"},
+                                                      {core::RobustKernel::huber, "huber"},
+                                                      {core::RobustKernel::cauchy, "cauchy"}};
+
+// ---- the table builder -----------------------------------------------------------------------
+
+// The members of one sub-struct, keyed "<prefix>.<name>". `access` is a generic lambda
+// (auto& config) -> auto& that reaches the sub-struct from a ServerConfig, const or not.
+template <class Access>
+class Section {
+ public:
+  Section(std::vector<ConfigField>* fields, std::string prefix, Access access)
+      : fields_(fields), prefix_(std::move(prefix)), access_(access) {}
+
+  template <class S, class T>
+  void add(const char* name, T S::*member) const {
+    fields_->push_back(
+        {key(name), Codec<T>::kTypeName,
+         [access = access_, member](ServerConfig* c, const std::string& text, std::string* why) {
+           return Codec<T>::parse(text, &(access(*c).*member), why);
+         },
+         [access = access_, member](const ServerConfig& c) {
+           return Codec<T>::format(access(c).*member);
+         }});
+  }
+
+  template <class S, class E>
+  void add(const char* name, E S::*member, const EnumNames<E>& names) const {
+    const EnumCodec<E> codec{names};
+    fields_->push_back(
+        {key(name), codec.type_name(),
+         [access = access_, member, codec](ServerConfig* c, const std::string& text,
+                                           std::string* why) {
+           return codec.parse(text, &(access(*c).*member), why);
+         },
+         [access = access_, member, codec](const ServerConfig& c) {
+           return codec.format(access(c).*member);
+         }});
+  }
+
+ private:
+  std::string key(const char* name) const { return prefix_.empty() ? name : prefix_ + "." + name; }
+  std::vector<ConfigField>* fields_;
+  std::string prefix_;
+  Access access_;
+};
+
+template <class Access>
+Section<Access> section(std::vector<ConfigField>* fields, std::string prefix, Access access) {
+  return Section<Access>(fields, std::move(prefix), access);
+}
+
+// ---- core::PipelineConfig --------------------------------------------------------------------
+
+void add_pipeline_fields(std::vector<ConfigField>* f) {
+  using Pipeline = core::PipelineConfig;
+  const auto pipeline = section(f, "", [](auto& c) -> auto& { return c.pipeline; });
+  pipeline.add("realtime", &Pipeline::realtime);
+  pipeline.add("min_iterations_when_behind", &Pipeline::min_iterations_when_behind);
+  pipeline.add("idle_iterations", &Pipeline::idle_iterations);
+
+  using Tracker = core::TrackerConfig;
+  const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.pipeline.tracker; });
+  tracker.add("constant_velocity", &Tracker::constant_velocity);
+  tracker.add("parallel", &Tracker::parallel);
+
+  using Preprocess = core::PreprocessConfig;
+  const auto pre = section(f, "tracker.preprocess",
+                           [](auto& c) -> auto& { return c.pipeline.tracker.preprocess; });
+  pre.add("min_depth", &Preprocess::min_depth);
+  pre.add("max_depth", &Preprocess::max_depth);
+  pre.add("stride", &Preprocess::stride);
+  pre.add("voxel_size", &Preprocess::voxel_size);
+
+  using Covariance = core::CovarianceConfig;
+  const auto cov = section(f, "tracker.preprocess.covariance",
+                           [](auto& c) -> auto& { return c.pipeline.tracker.preprocess.covariance; });
+  cov.add("min_neighbours", &Covariance::min_neighbours);
+  cov.add("knn", &Covariance::knn);
+  cov.add("window_radius", &Covariance::window_radius);
+  cov.add("max_neighbour_distance", &Covariance::max_neighbour_distance);
+  cov.add("plane_epsilon", &Covariance::plane_epsilon);
+
+  using DepthNoise = core::DepthNoiseModel;
+  const auto noise = section(f, "tracker.preprocess.depth_noise",
+                             [](auto& c) -> auto& { return c.pipeline.tracker.preprocess.depth_noise; });
+  noise.add("enabled", &DepthNoise::enabled);
+  noise.add("a", &DepthNoise::a);
+  noise.add("b", &DepthNoise::b);
+  noise.add("z0", &DepthNoise::z0);
+  noise.add("reference_depth", &DepthNoise::reference_depth);
+
+  using LocalMap = core::LocalMapConfig;
+  const auto local = section(f, "tracker.local_map",
+                             [](auto& c) -> auto& { return c.pipeline.tracker.local_map; });
+  local.add("voxel_size", &LocalMap::voxel_size);
+  local.add("min_point_distance", &LocalMap::min_point_distance);
+  local.add("max_points_per_voxel", &LocalMap::max_points_per_voxel);
+  local.add("radius", &LocalMap::radius);
+
+  using Gicp = core::GicpConfig;
+  const auto gicp = section(f, "tracker.gicp", [](auto& c) -> auto& { return c.pipeline.tracker.gicp; });
+  gicp.add("max_iterations", &Gicp::max_iterations);
+  gicp.add("max_correspondence_distance", &Gicp::max_correspondence_distance);
+  gicp.add("kernel", &Gicp::kernel, kRobustKernels);
+  gicp.add("kernel_scale", &Gicp::kernel_scale);
+  gicp.add("translation_epsilon", &Gicp::translation_epsilon);
+  gicp.add("rotation_epsilon", &Gicp::rotation_epsilon);
+  gicp.add("lm_lambda", &Gicp::lm_lambda);
+  gicp.add("use_opacity", &Gicp::use_opacity);
+  gicp.add("use_features", &Gicp::use_features);
+  gicp.add("feature_gamma", &Gicp::feature_gamma);
+
+  using Keyframe = core::KeyframeConfig;
+  const auto keyframe = section(f, "tracker.keyframe",
+                                [](auto& c) -> auto& { return c.pipeline.tracker.keyframe; });
+  keyframe.add("translation", &Keyframe::translation);
+  keyframe.add("rotation_deg", &Keyframe::rotation_deg);
+  keyframe.add("rms_residual", &Keyframe::rms_residual);
+
+  using Loss = core::TrackingLossConfig;
+  const auto loss = section(f, "tracker.loss", [](auto& c) -> auto& { return c.pipeline.tracker.loss; });
+  loss.add("min_inlier_ratio", &Loss::min_inlier_ratio);
+  loss.add("min_inliers", &Loss::min_inliers);
+  loss.add("max_condition_number", &Loss::max_condition_number);
+  loss.add("recovery_keyframes", &Loss::recovery_keyframes);
+
+  using Mapper = core::MapperConfig;
+  const auto mapper = section(f, "mapper", [](auto& c) -> auto& { return c.pipeline.mapper; });
+  mapper.add("sh_degree", &Mapper::sh_degree);
+  mapper.add("feature_dim", &Mapper::feature_dim);
+  mapper.add("training_scale", &Mapper::training_scale);
+  mapper.add("insert_stride", &Mapper::insert_stride);
+  mapper.add("new_alpha", &Mapper::new_alpha);
+  mapper.add("new_depth_margin", &Mapper::new_depth_margin);
+  mapper.add("new_depth_relative", &Mapper::new_depth_relative);
+  mapper.add("min_depth", &Mapper::min_depth);
+  mapper.add("max_depth", &Mapper::max_depth);
+  mapper.add("initial_opacity", &Mapper::initial_opacity);
+  mapper.add("initial_scale_factor", &Mapper::initial_scale_factor);
+  mapper.add("initial_thickness", &Mapper::initial_thickness);
+  mapper.add("iterations_per_keyframe", &Mapper::iterations_per_keyframe);
+  mapper.add("newest_keyframe_probability", &Mapper::newest_keyframe_probability);
+  mapper.add("prune_percentile_tracking", &Mapper::prune_percentile_tracking);
+  mapper.add("prune_percentile_mapping", &Mapper::prune_percentile_mapping);
+  mapper.add("prune_new_only", &Mapper::prune_new_only);
+  mapper.add("mapping_keyframe_translation", &Mapper::mapping_keyframe_translation);
+  mapper.add("mapping_keyframe_rotation_deg", &Mapper::mapping_keyframe_rotation_deg);
+  mapper.add("min_opacity", &Mapper::min_opacity);
+  mapper.add("max_scale", &Mapper::max_scale);
+  mapper.add("filter_3d_factor", &Mapper::filter_3d_factor);
+  mapper.add("seed", &Mapper::seed);
+
+  // RenderSettings::background is a colour triple, not a scalar: not in the table.
+  using Render = core::RenderSettings;
+  const auto render = section(f, "mapper.render", [](auto& c) -> auto& { return c.pipeline.mapper.render; });
+  render.add("near_plane", &Render::near_plane);
+  render.add("features", &Render::features);
+
+  using Rates = core::GaussianLearningRates;
+  const auto lr = section(f, "mapper.learning_rates",
+                          [](auto& c) -> auto& { return c.pipeline.mapper.learning_rates; });
+  lr.add("means", &Rates::means);
+  lr.add("sh_dc", &Rates::sh_dc);
+  lr.add("sh_rest", &Rates::sh_rest);
+  lr.add("opacity", &Rates::opacity);
+  lr.add("log_scales", &Rates::log_scales);
+  lr.add("rotations", &Rates::rotations);
+  lr.add("features", &Rates::features);
+
+  using Weights = core::MappingLossWeights;
+  const auto weights = section(f, "mapper.loss", [](auto& c) -> auto& { return c.pipeline.mapper.loss; });
+  weights.add("rgb_l1", &Weights::rgb_l1);
+  weights.add("rgb_ssim", &Weights::rgb_ssim);
+  weights.add("feature_l1", &Weights::feature_l1);
+  weights.add("depth_l1", &Weights::depth_l1);
+  weights.add("depth_pcc", &Weights::depth_pcc);
+  weights.add("normal", &Weights::normal);
+  weights.add("erank_lambda_0", &Weights::erank_lambda_0);
+  weights.add("erank_lambda_max", &Weights::erank_lambda_max);
+  weights.add("erank_ramp_steps", &Weights::erank_ramp_steps);
+  weights.add("erank_epsilon", &Weights::erank_epsilon);
+  weights.add("thin", &Weights::thin);
+
+  using Pcc = core::PccConfig;
+  const auto pcc = section(f, "mapper.loss.pcc", [](auto& c) -> auto& { return c.pipeline.mapper.loss.pcc; });
+  pcc.add("block", &Pcc::block);
+  pcc.add("min_valid_pixels", &Pcc::min_valid_pixels);
+  pcc.add("min_std", &Pcc::min_std);
+}
+
+// ---- ServerConfig's own settings (server.*) --------------------------------------------------
+// Kept apart from the pipeline's: new server fields are added here. `domain` is deliberately not
+// a setting: it picks the DDS network, a deployment choice made on the command line (--domain).
+
+void add_server_fields(std::vector<ConfigField>* f) {
+  const auto server = section(f, "server", [](auto& c) -> auto& { return c; });
+  server.add("prefix", &ServerConfig::prefix);
+  server.add("queue_capacity", &ServerConfig::queue_capacity);
+  server.add("status_period_ms", &ServerConfig::status_period_ms);
+  server.add("map_dir", &ServerConfig::map_dir);
+  server.add("load_maps_at_start", &ServerConfig::load_maps_at_start);
+  server.add("save_maps_at_shutdown", &ServerConfig::save_maps_at_shutdown);
+  server.add("query_threads", &ServerConfig::query_threads);
+  server.add("query_queue_capacity", &ServerConfig::query_queue_capacity);
+  server.add("max_render_pixels", &ServerConfig::max_render_pixels);
+}
+
+// ---- lookup and messages ---------------------------------------------------------------------
+
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t substitution = diagonal + (a[i - 1] == b[j - 1] ? 0 : 1);
+      diagonal = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, substitution});
+    }
+  }
+  return row[b.size()];
+}
+
+// The key a typo or an old short name most likely meant: one that ends in `.key` (the names
+// `fslam run --set` took before the table), else the closest by edit distance if close enough.
+std::string nearest_key(const std::string& key) {
+  std::string best;
+  std::size_t best_distance = key.size() / 3 + 2;
+  for (const ConfigField& field : config_fields()) {
+    const std::string& k = field.key;
+    if (k.size() > key.size() && k.compare(k.size() - key.size(), key.size(), key) == 0 &&
+        k[k.size() - key.size() - 1] == '.')
+      return k;
+    const std::size_t d = edit_distance(key, k);
+    if (d < best_distance) best = k, best_distance = d;
+  }
+  return best;
+}
+
+bool is_group(const std::string& key) {
+  const std::string prefix = key + ".";
+  for (const ConfigField& field : config_fields())
+    if (field.key.compare(0, prefix.size(), prefix) == 0) return true;
+  return false;
+}
+
+std::string unknown_setting(const std::string& key) {
+  if (is_group(key)) return "'" + key + "' is a group of settings, not one value";
+  const std::string nearest = nearest_key(key);
+  return "unknown setting '" + key + "'" + (nearest.empty() ? "" : " (did you mean " + nearest + "?)");
+}
+
+bool load_map(const YAML::Node& map, const std::string& prefix, const std::string& path,
+              ServerConfig* config, std::string* why) {
+  for (const auto& item : map) {
+    const std::string key = prefix + item.first.Scalar();
+    const YAML::Node& value = item.second;
+    const std::string where = path + ":" + std::to_string(item.first.Mark().line + 1) + ": ";
+    const bool group = is_group(key);
+    if (value.IsMap() && group) {
+      if (!load_map(value, key + ".", path, config, why)) return false;
+    } else if (value.IsNull() && group) {
+      // A group whose entries are all commented out sets nothing.
+    } else if (!find_config_field(key)) {
+      return fail(why, where + unknown_setting(key));
+    } else if (value.IsNull()) {
+      return fail(why, where + "'" + key + "' has no value");
+    } else if (!value.IsScalar()) {
+      return fail(why, where + "'" + key + "' takes one value, not " +
+                           (value.IsMap() ? "a map" : "a list"));
+    } else if (std::string reason; !set_config_value(config, key, value.Scalar(), &reason)) {
+      return fail(why, where + reason);
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+const std::vector<ConfigField>& config_fields() {
+  static const std::vector<ConfigField> fields = [] {
+    std::vector<ConfigField> f;
+    add_pipeline_fields(&f);
+    add_server_fields(&f);
+    return f;
+  }();
+  return fields;
+}
+
+const ConfigField* find_config_field(const std::string& key) {
+  for (const ConfigField& field : config_fields())
+    if (field.key == key) return &field;
+  return nullptr;
+}
+
+bool set_config_value(ServerConfig* config, const std::string& key, const std::string& value,
+                      std::string* why) {
+  const ConfigField* field = find_config_field(key);
+  if (!field) return fail(why, unknown_setting(key));
+  std::string reason;
+  if (!field->set(config, value, &reason)) return fail(why, key + ": " + reason);
+  return true;
+}
+
+bool set_config_assignment(ServerConfig* config, const std::string& assignment, std::string* why) {
+  const auto eq = assignment.find('=');
+  if (eq == std::string::npos) return fail(why, "expected key=value, got '" + assignment + "'");
+  return set_config_value(config, assignment.substr(0, eq), assignment.substr(eq + 1), why);
+}
+
+bool load_config_file(const std::string& path, ServerConfig* config, std::string* why) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    return fail(why, path + ": cannot read the file");
+  } catch (const YAML::Exception& e) {
+    return fail(why, path + ":" + std::to_string(e.mark.line + 1) + ": " + e.msg);
+  }
+  if (root.IsNull()) return true;  // empty, or only comments: overrides nothing
+  if (!root.IsMap()) return fail(why, path + ": expected a map of settings at the top level");
+  return load_map(root, "", path, config, why);
+}
+
+std::string effective_config_yaml(const ServerConfig& config) {
+  YAML::Node root(YAML::NodeType::Map);
+  for (const ConfigField& field : config_fields()) {
+    YAML::Node node = root;
+    std::size_t begin = 0;
+    for (std::size_t dot; (dot = field.key.find('.', begin)) != std::string::npos; begin = dot + 1)
+      node.reset(node[field.key.substr(begin, dot - begin)]);
+    node[field.key.substr(begin)] = field.get(config);
+  }
+  YAML::Emitter out;
+  out << root;
+  return std::string(out.c_str()) + "\n";
+}
+
+}  // namespace fslam::server
