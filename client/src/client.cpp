@@ -338,6 +338,10 @@ void Client::listen() {
       update.resident_bytes = st.resident_bytes;
       update.track_ms_p50 = st.track_ms_p50;
       update.track_ms_p99 = st.track_ms_p99;
+      update.decode_ms_p50 = st.decode_ms_p50;
+      update.decode_ms_p99 = st.decode_ms_p99;
+      update.map_ms_p50 = st.map_ms_p50;
+      update.map_ms_p99 = st.map_ms_p99;
       update.streaming = st.streaming;
       update.map_version = st.map_version;
       update.frames_tracked = st.frames_tracked;

@@ -37,13 +37,16 @@ int run_status(const StatusArgs& args) {
     return fail("no status from a server on prefix '" + args.client.prefix + "' within " +
                 std::to_string(args.seconds) + " s (is fslam-server running with that prefix?)");
   }
-  std::printf("%-16s %-14s %9s %8s %8s %9s %9s %5s %8s %15s %8s\n", "map", "session", "gaussians",
-              "version", "tracked", "received", "processed", "queue", "dropped", "track ms p50/99",
-              "rss MiB");
+  std::printf("%-16s %-14s %9s %8s %8s %9s %9s %5s %8s %31s %8s\n", "map", "session", "gaussians",
+              "version", "tracked", "received", "processed", "queue", "dropped",
+              "ms p50/p99: decode track map", "rss MiB");
   for (const auto& [key, s] : latest) {
-    char timing[32] = "-";
-    if (s.streaming) std::snprintf(timing, sizeof timing, "%.1f/%.1f", s.track_ms_p50, s.track_ms_p99);
-    std::printf("%-16s %-14s %9llu %8llu %8llu %9llu %9llu %5u %8llu %15s %8.0f\n",
+    char timing[64] = "-";
+    if (s.streaming) {
+      std::snprintf(timing, sizeof timing, "%.0f/%.0f %.0f/%.0f %.0f/%.0f", s.decode_ms_p50,
+                    s.decode_ms_p99, s.track_ms_p50, s.track_ms_p99, s.map_ms_p50, s.map_ms_p99);
+    }
+    std::printf("%-16s %-14s %9llu %8llu %8llu %9llu %9llu %5u %8llu %31s %8.0f\n",
                 s.map_name.c_str(), s.streaming ? s.session.c_str() : "(idle)",
                 static_cast<unsigned long long>(s.map_gaussians),
                 static_cast<unsigned long long>(s.map_version),

@@ -53,7 +53,8 @@ struct Server::Session {
   // Status counters (guarded by `mutex`).
   std::uint64_t received = 0, processed = 0, dropped = 0;
   std::string last_drop_reason;
-  std::deque<double> track_ms;  // the latest tracking times, for p50 / p99
+  // The latest stage times, for p50 / p99 (each bounded to kTimingWindow entries).
+  std::deque<double> decode_ms, track_ms, map_ms;
 };
 
 struct Server::QueuedFrame {
@@ -71,6 +72,13 @@ struct Server::Query {
 };
 
 namespace {
+
+constexpr std::size_t kTimingWindow = 1000;
+
+void record(std::deque<double>* window, double ms) {
+  window->push_back(ms);
+  if (window->size() > kTimingWindow) window->pop_front();
+}
 
 double quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
@@ -325,7 +333,6 @@ void Server::publish_status() {
   for (const auto& [name, s] : sessions_) {
     fslam_proto_SessionStatus st{};
     std::string session = s->name, map = s->map->name, reason;
-    std::vector<double> ms;
     {
       std::lock_guard<std::mutex> qlock(s->mutex);
       st.queue_depth = static_cast<std::uint32_t>(s->queue.size());
@@ -333,13 +340,19 @@ void Server::publish_status() {
       st.frames_processed = s->processed;
       st.frames_dropped = s->dropped;
       reason = s->last_drop_reason;
-      ms.assign(s->track_ms.begin(), s->track_ms.end());
+      auto p = [](const std::deque<double>& w, double q) {
+        return static_cast<float>(quantile(std::vector<double>(w.begin(), w.end()), q));
+      };
+      st.decode_ms_p50 = p(s->decode_ms, 0.5);
+      st.decode_ms_p99 = p(s->decode_ms, 0.99);
+      st.track_ms_p50 = p(s->track_ms, 0.5);
+      st.track_ms_p99 = p(s->track_ms, 0.99);
+      st.map_ms_p50 = p(s->map_ms, 0.5);
+      st.map_ms_p99 = p(s->map_ms, 0.99);
     }
     st.session = session.data();
     st.map_name = map.data();
     st.last_drop_reason = reason.data();
-    st.track_ms_p50 = static_cast<float>(quantile(ms, 0.5));
-    st.track_ms_p99 = static_cast<float>(quantile(ms, 0.99));
     describe_map(*s->map, &st);
     dds_write(status_writer_.get(), &st);
   }
@@ -408,7 +421,12 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       s->tracking = std::thread([this, raw] { run_tracking(raw); });
       s->mapping = std::thread([this, raw] {
         std::string mwhy;
-        if (!raw->map->pipeline->run_mapping(nullptr, &mwhy)) {
+        auto on_keyframe = [raw](const core::KeyframeReport& report) {
+          const core::RefinementStats& r = report.refinement;
+          std::lock_guard<std::mutex> lock(raw->mutex);
+          record(&raw->map_ms, r.insert_ms + r.optimise_ms + r.prune_ms);
+        };
+        if (!raw->map->pipeline->run_mapping(on_keyframe, &mwhy)) {
           // Tracking goes on; clients learn that the map stopped growing, and why.
           publish_result(raw->name.c_str(), 0, raw->map->name, "mapping failed: " + mwhy);
         }
@@ -489,6 +507,7 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
       return;
     }
     queued.queued = Clock::now();
+    record(&s.decode_ms, queued.decode_ms);
     s.queue.push_back(std::move(queued));
   }
   s.wake.notify_one();
@@ -518,8 +537,7 @@ void Server::run_tracking(Session* s) {
     {
       std::lock_guard<std::mutex> lock(s->mutex);
       ++s->processed;
-      s->track_ms.push_back(track_ms);
-      if (s->track_ms.size() > 1000) s->track_ms.pop_front();
+      record(&s->track_ms, track_ms);
     }
     if (!tracked) {
       std::string session = s->name;

@@ -71,7 +71,9 @@ struct StatusUpdate {
   std::uint32_t queue_depth = 0;
   std::uint64_t frames_received = 0, frames_processed = 0, frames_dropped = 0;
   std::uint64_t map_gaussians = 0, resident_bytes = 0;
-  float track_ms_p50 = 0, track_ms_p99 = 0;
+  float decode_ms_p50 = 0, decode_ms_p99 = 0;  // per frame
+  float track_ms_p50 = 0, track_ms_p99 = 0;    // per frame
+  float map_ms_p50 = 0, map_ms_p99 = 0;        // per keyframe
   bool streaming = false;               // false: a map no session streams into (session empty)
   std::uint64_t map_version = 0, frames_tracked = 0;
 };
