@@ -1,0 +1,90 @@
+// Open-set segmentation of a feature-distilled Gaussian map (paper sec. "Novel-View Open-Set
+// Segmentation"): instances found without a prompt by clustering the Gaussians in feature space
+// and space, and objects selected by point or box prompts in a view, refined in 3D. Both give a
+// label per Gaussian, so any view renders them: ids and masks are consistent across views by
+// construction. docs/segmentation.md states the algorithm and its limits.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core/mat.hpp>
+
+#include "fslam/core/map/gaussian_map.hpp"
+#include "fslam/core/render/rasterizer.hpp"
+
+namespace fslam::core {
+
+// The neighbourhood graph both modes grow regions in: k nearest Gaussian means within a radius,
+// joined when their latents are alike. Latents are compared centred and scaled by their spread
+// over the map (one scale for all channels), as the RMS difference over the D channels.
+struct FeatureGraphConfig {
+  int knn = 10;                        // neighbours per Gaussian
+  float max_neighbour_distance = 0.08f;  // metres between means; farther is never one object
+  float feature_threshold = 0.6f;      // RMS standardised latent difference joining two Gaussians
+  float min_opacity = 0.1f;            // fainter Gaussians take no part (label -1)
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+struct PromptlessConfig {
+  FeatureGraphConfig graph;
+  // Regions with fewer Gaussians join the neighbouring instance with the most alike latent.
+  std::size_t min_instance_gaussians = 200;
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// A label per Gaussian: 0..count-1, or -1 for none.
+struct GaussianLabels {
+  std::vector<int> label;  // [N]
+  int count = 0;
+};
+
+// Promptless instances: connected regions of the feature graph, small ones merged, numbered by
+// size (0 = largest). False with `why` for a map without features or a bad config.
+bool cluster_instances(const GaussianMap& map, const PromptlessConfig& config,
+                       GaussianLabels* labels, std::string* why);
+
+// Keeps instance ids stable over time: relabels `labels` (of `map`) so that each instance takes
+// the id of the earlier instance most of its Gaussians lie next to (within `radius` metres of an
+// earlier Gaussian of `previous_map`); new instances get ids after the largest earlier one.
+void carry_instance_ids(const GaussianMap& previous_map, const GaussianLabels& previous,
+                        const GaussianMap& map, float radius, GaussianLabels* labels);
+
+// Renders per-pixel labels: the label whose Gaussians contribute the most opacity to the pixel,
+// -1 where the accumulated opacity of labelled Gaussians is below min_alpha. ids: CV_32SC1.
+bool render_labels(const Rasterizer& rasterizer, const GaussianMap& map, const GaussianLabels& labels,
+                   const RenderView& view, float min_alpha, cv::Mat* ids, std::string* why);
+
+struct PromptConfig {
+  FeatureGraphConfig graph;
+  float seed_radius = 0.03f;  // metres around the prompted surface point: the region's seeds
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// A box prompt in pixels of the view: [u0, u1) x [v0, v1).
+struct BoxPrompt {
+  double u0 = 0, v0 = 0, u1 = 0, v1 = 0;
+};
+
+// Selects the object under point prompts (pixel coordinates of `view`): the prompted pixels'
+// rendered latent, then the feature-graph region around the prompted surface points, restricted
+// to Gaussians with a latent like the prompt's. selected: [N] 1 = in the object. Each point is
+// its own prompt; the object is their union. False with `why` when a prompt hits no surface.
+bool select_by_points(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
+                      const std::vector<Eigen::Vector2d>& points, const PromptConfig& config,
+                      std::vector<std::uint8_t>* selected, std::string* why);
+
+// A box prompt: the median rendered latent of the box's inner half and seeds on a 3x3 grid there.
+bool select_by_box(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
+                   const BoxPrompt& box, const PromptConfig& config,
+                   std::vector<std::uint8_t>* selected, std::string* why);
+
+// Renders a selection as a mask: 255 where the selected Gaussians make up most of the pixel's
+// opacity and it is at least min_alpha opaque, else 0. mask: CV_8UC1.
+bool render_selection(const Rasterizer& rasterizer, const GaussianMap& map,
+                      const std::vector<std::uint8_t>& selected, const RenderView& view,
+                      float min_alpha, cv::Mat* mask, std::string* why);
+
+}  // namespace fslam::core

@@ -1,0 +1,217 @@
+// Promptless clustering, prompts and label rendering on a constructed map whose objects are
+// known: two touching panels with different latents, and a third panel with the first one's
+// latent but apart in space.
+#include <cmath>
+#include <algorithm>
+#include <map>
+#include <numeric>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+
+#include "fslam/core/eval/segmentation_metrics.hpp"
+#include "fslam/core/segmentation/segmentation.hpp"
+
+namespace fslam::core {
+namespace {
+
+constexpr int kD = 8;
+
+// Panel of Gaussians on z = 2 m, x in [x0, x1), y in [-0.3, 0.3), 1 cm apart, latent `base` plus
+// noise of `noise` per channel.
+void add_panel(GaussianMap* map, float x0, float x1, const std::vector<float>& base, float noise,
+               std::mt19937* rng) {
+  std::normal_distribution<float> n(0.0f, noise);
+  for (float x = x0; x < x1 - 1e-6f; x += 0.01f)
+    for (float y = -0.3f; y < 0.3f - 1e-6f; y += 0.01f) {
+      const float mean[3] = {x + 0.005f, y + 0.005f, 2.0f};
+      const float rotation[4] = {1, 0, 0, 0};
+      const float log_scale[3] = {std::log(0.007f), std::log(0.007f), std::log(0.001f)};
+      const float sh[3] = {0.5f, 0.5f, 0.5f};
+      std::vector<float> f(base);
+      for (float& v : f) v += n(*rng);
+      map->push_back(mean, rotation, log_scale, 4.0f, sh, f.data());
+    }
+}
+
+struct Scene {
+  GaussianMap map;
+  RenderView view;
+  std::unique_ptr<Rasterizer> rasterizer = make_cpu_rasterizer();
+  std::size_t left = 0, right = 0, far = 0;  // Gaussians per panel, in this order in the map
+  Scene() {
+    map.sh_degree = 0;
+    map.feature_dim = kD;
+    std::mt19937 rng(7);
+    std::vector<float> a(kD, 0.0f), b(kD, 0.0f);
+    a[0] = 1.0f;
+    a[3] = -0.5f;
+    b[1] = 1.0f;
+    b[5] = 0.7f;
+    add_panel(&map, -0.5f, 0.0f, a, 0.05f, &rng);
+    left = map.size();
+    add_panel(&map, 0.0f, 0.5f, b, 0.05f, &rng);
+    right = map.size() - left;
+    add_panel(&map, 0.6f, 0.75f, a, 0.05f, &rng);
+    far = map.size() - left - right;
+    view.camera = {200.0, 200.0, 79.5, 59.5, 160, 120};  // looks down +z from the origin
+  }
+  // Ground truth per pixel: 1 left, 2 right, 3 far, 0 elsewhere: the panel whose extent holds
+  // the pixel centre (edges at u = 29.5, 79.5, 129.5, 139.5, 154.5 and v = 29.5, 89.5).
+  cv::Mat truth() const {
+    cv::Mat t(120, 160, CV_32SC1, cv::Scalar(0));
+    for (int v = 30; v <= 89; ++v)
+      for (int u = 30; u <= 154; ++u) {
+        if (u <= 79) t.at<int>(v, u) = 1;
+        else if (u <= 129) t.at<int>(v, u) = 2;
+        else if (u >= 140) t.at<int>(v, u) = 3;
+      }
+    return t;
+  }
+};
+
+TEST(Segmentation, PromptlessFindsTheThreePanels) {
+  Scene s;
+  PromptlessConfig config;
+  config.min_instance_gaussians = 100;
+  GaussianLabels labels;
+  std::string why;
+  ASSERT_TRUE(cluster_instances(s.map, config, &labels, &why)) << why;
+  ASSERT_EQ(labels.count, 3);
+  // Each panel is one instance, and the same-latent panels apart in space are two.
+  auto label_of = [&](std::size_t begin, std::size_t end) {
+    std::map<int, std::size_t> n;
+    for (std::size_t i = begin; i < end; ++i) ++n[labels.label[i]];
+    EXPECT_EQ(n.size(), 1u) << "panel [" << begin << ", " << end << ") is split";
+    return n.begin()->first;
+  };
+  const int l = label_of(0, s.left), r = label_of(s.left, s.left + s.right),
+            f = label_of(s.left + s.right, s.map.size());
+  EXPECT_NE(l, r);
+  EXPECT_NE(l, f);
+  EXPECT_EQ(l, 0);  // numbered by size: the 50 x 60 panels first
+  cv::Mat ids;
+  ASSERT_TRUE(render_labels(*s.rasterizer, s.map, labels, s.view, 0.5f, &ids, &why)) << why;
+  InstanceConfusion confusion;
+  ASSERT_TRUE(confusion.add(ids, s.truth(), &why)) << why;
+  const InstanceConfusion::Score score = confusion.score();
+  EXPECT_EQ(score.scored, 3u);
+  EXPECT_GT(score.miou, 0.9);
+}
+
+TEST(Segmentation, InstanceIdsCarryOverToALaterClustering) {
+  Scene s;
+  PromptlessConfig config;
+  config.min_instance_gaussians = 100;
+  GaussianLabels first, second;
+  std::string why;
+  ASSERT_TRUE(cluster_instances(s.map, config, &first, &why)) << why;
+  // A later map version: the left panel lost half its Gaussians, so sizes (and the raw
+  // numbering) change; carried ids must not.
+  GaussianMap later = s.map;
+  std::vector<std::uint8_t> keep(s.map.size(), 1);
+  for (std::size_t i = 0; i < s.left; i += 2) keep[i] = 0;
+  later.keep_only(keep);
+  ASSERT_TRUE(cluster_instances(later, config, &second, &why)) << why;
+  carry_instance_ids(s.map, first, later, 0.02f, &second);
+  EXPECT_EQ(second.count, 3);
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < s.map.size(); ++i) {
+    if (!keep[i]) continue;
+    EXPECT_EQ(second.label[k], first.label[i]) << "Gaussian " << i;
+    ++k;
+  }
+}
+
+TEST(Segmentation, APointPromptSelectsItsPanelOnly) {
+  Scene s;
+  PromptConfig config;
+  std::vector<std::uint8_t> selected;
+  std::string why;
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{50.0, 60.0}}, config, &selected, &why)) << why;
+  std::size_t in_left = 0, elsewhere = 0;
+  for (std::size_t i = 0; i < s.map.size(); ++i) {
+    if (!selected[i]) continue;
+    (i < s.left ? in_left : elsewhere) += 1;
+  }
+  EXPECT_GT(in_left, s.left * 95 / 100) << in_left << " of " << s.left;
+  EXPECT_EQ(elsewhere, 0u) << "the far panel shares the latent but not the surface";
+  cv::Mat mask;
+  ASSERT_TRUE(render_selection(*s.rasterizer, s.map, selected, s.view, 0.5f, &mask, &why)) << why;
+  EXPECT_GT(mask_iou(mask, s.truth(), 1), 0.9) << "mask " << cv::countNonZero(mask) << " px";
+  // Off the map: a clear error.
+  EXPECT_FALSE(select_by_points(*s.rasterizer, s.map, s.view, {{5.0, 5.0}}, config, &selected, &why));
+  EXPECT_NE(why.find("hits no surface"), std::string::npos) << why;
+}
+
+TEST(Segmentation, ABoxPromptSelectsThePanelInside) {
+  Scene s;
+  PromptConfig config;
+  std::vector<std::uint8_t> selected;
+  std::string why;
+  const BoxPrompt box{84.0, 35.0, 126.0, 85.0};  // inside the right panel
+  ASSERT_TRUE(select_by_box(*s.rasterizer, s.map, s.view, box, config, &selected, &why)) << why;
+  cv::Mat mask;
+  ASSERT_TRUE(render_selection(*s.rasterizer, s.map, selected, s.view, 0.5f, &mask, &why)) << why;
+  EXPECT_GT(mask_iou(mask, s.truth(), 2), 0.9);
+  EXPECT_LT(mask_iou(mask, s.truth(), 1), 0.01);
+}
+
+TEST(Segmentation, AMapWithoutFeaturesIsAClearError) {
+  Scene s;
+  s.map.feature_dim = 0;
+  s.map.features.clear();
+  GaussianLabels labels;
+  std::string why;
+  EXPECT_FALSE(cluster_instances(s.map, PromptlessConfig{}, &labels, &why));
+  EXPECT_NE(why.find("no features"), std::string::npos) << why;
+}
+
+TEST(SegmentationMetrics, HungarianMatchesBruteForce) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> d(0.0, 1.0);
+  for (const auto& [rows, cols] : {std::pair{4, 4}, std::pair{3, 5}, std::pair{5, 3}}) {
+    std::vector<double> cost(static_cast<std::size_t>(rows * cols));
+    for (double& c : cost) c = d(rng);
+    const std::vector<int> got = hungarian_assignment(cost, rows, cols);
+    double got_cost = 0;
+    for (int r = 0; r < rows; ++r)
+      if (got[r] >= 0) got_cost += cost[static_cast<std::size_t>(r * cols + got[r])];
+    // Brute force over column permutations (rows >= cols: choose which rows stay out).
+    const int n = std::max(rows, cols);
+    std::vector<int> perm(n);
+    std::iota(perm.begin(), perm.end(), 0);
+    double best = 1e9;
+    do {
+      double c = 0;
+      for (int r = 0; r < rows; ++r)
+        if (perm[r] < cols) c += cost[static_cast<std::size_t>(r * cols + perm[r])];
+      best = std::min(best, c);
+    } while (std::next_permutation(perm.begin(), perm.end()));
+    EXPECT_NEAR(got_cost, best, 1e-12) << rows << "x" << cols;
+  }
+}
+
+TEST(SegmentationMetrics, MergedAndSplitInstancesScoreAsExpected) {
+  cv::Mat truth(1, 8, CV_32SC1), predicted(1, 8, CV_32SC1);
+  // truth 1 1 1 1 2 2 0 0 ; predicted 5 5 7 7 7 7 7 -1
+  const int t[8] = {1, 1, 1, 1, 2, 2, 0, 0}, p[8] = {5, 5, 7, 7, 7, 7, 7, -1};
+  for (int u = 0; u < 8; ++u) {
+    truth.at<int>(0, u) = t[u];
+    predicted.at<int>(0, u) = p[u];
+  }
+  InstanceConfusion c;
+  std::string why;
+  ASSERT_TRUE(c.add(predicted, truth, &why)) << why;
+  const auto s = c.score(1);
+  // Predicted 7 over labelled pixels covers 4 (2 of truth 1, 2 of truth 2). Best matching:
+  // 1 <-> 5 (IoU 2/4), 2 <-> 7 (IoU 2/4): mIoU 0.5; pixels covered 2/4 and 2/2: mAcc 0.75.
+  EXPECT_NEAR(s.miou, 0.5, 1e-12);
+  EXPECT_NEAR(s.macc, 0.75, 1e-12);
+  EXPECT_EQ(s.matched.at(1), 5);
+  EXPECT_EQ(s.matched.at(2), 7);
+}
+
+}  // namespace
+}  // namespace fslam::core
