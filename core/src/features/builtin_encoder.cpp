@@ -262,8 +262,9 @@ class BuiltinFeatureEncoder final : public FeatureEncoder {
       const int start = std::max(0, d - 1);
       if (d == 0) {
         // Stride 2: lightness at twice the fine resolution, from luma through a table of the
-        // L* of sRGB greys (exact for greys; the float Lab conversion would cost ~4x as much),
-        // blurred like the cascade; its energies are area-pooled onto the fine grid.
+        // L* of sRGB greys (exact for greys, and several times cheaper than a Lab conversion
+        // at this size), blurred like the cascade; its energies are area-pooled onto the fine
+        // grid.
         cv::cvtColor(rgb2_, grey2_, cv::COLOR_RGB2GRAY);
         cv::LUT(grey2_, grey_lightness_, light2_);
         blur(light2_, &blur2_);
