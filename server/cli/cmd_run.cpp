@@ -117,7 +117,7 @@ int run_slam(const RunArgs& args) {
 
   server::ServerConfig layered;  // run reads its pipeline part; server.* keys do not apply
   layered.pipeline = core::PipelineConfig{};  // offline by default (the server's is real-time)
-  // No feature encoder yet, so run's own default is no features (a --config file may differ).
+  // Without features (no autoencoder weights) the Gaussians carry none; with them, the latent.
   layered.pipeline.mapper.feature_dim = 0;
   if (!args.config.apply(&layered, &why)) return fail(why);
   core::PipelineConfig config = layered.pipeline;
@@ -127,6 +127,13 @@ int run_slam(const RunArgs& args) {
     return fail("realtime is set but fslam run needs the rate to pace the dataset at: add "
                 "--realtime FPS");
   }
+  std::unique_ptr<core::LatentFeatures> features;
+  if (config.features.enabled()) {
+    features = core::LatentFeatures::create(config.features, &why);
+    if (!features) return fail(why);
+    config.mapper.feature_dim = features->dim();
+    std::fprintf(stderr, "features: %s\n", features->describe().c_str());
+  }
   if (!config.is_valid(&why)) return fail("config: " + why);
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(args.threads));
@@ -134,7 +141,7 @@ int run_slam(const RunArgs& args) {
   fs::create_directories(fs::path(args.out) / "renders", ec);
   if (ec) return fail("cannot create " + args.out + ": " + ec.message());
 
-  core::SlamPipeline pipeline(config, rasterizer);
+  core::SlamPipeline pipeline(config, rasterizer, std::move(features));
   if (!args.resume.empty()) {
     core::GaussianMap resumed;
     if (!core::read_gaussian_ply(args.resume, &resumed, &why)) return fail(why);
@@ -150,7 +157,7 @@ int run_slam(const RunArgs& args) {
                                : "as fast as it can");
 
   // Mapping thread.
-  std::vector<double> keyframe_ms;
+  std::vector<double> keyframe_ms, features_ms;
   std::atomic<std::size_t> mapped{0};
   std::mutex progress_mutex;
   std::unique_ptr<Progress> mapping_progress;  // once tracking is done: the keyframes left
@@ -167,6 +174,7 @@ int run_slam(const RunArgs& args) {
           [&](const core::KeyframeReport& r) {
             keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms +
                                   r.refinement.prune_ms);
+            features_ms.push_back(r.features_ms);
             const std::size_t done = mapped.fetch_add(1) + 1;
             std::lock_guard<std::mutex> lock(progress_mutex);
             if (mapping_progress) mapping_progress->update(done);
@@ -364,7 +372,8 @@ int run_slam(const RunArgs& args) {
                        {"tracking_wall_s", ms_between(start, tracking_done) / 1000.0},
                        {"refine_s", ms_between(mapping_done, refine_done) / 1000.0},
                        {"tracking_per_frame", timing_json(track_ms)},
-                       {"mapping_per_keyframe", timing_json(keyframe_ms)}};
+                       {"mapping_per_keyframe", timing_json(keyframe_ms)},
+                       {"features_per_keyframe", timing_json(features_ms)}};
   metrics["frames"] = {{"tracked", trajectory.size()}, {"lost", lost}, {"skipped", skipped},
                        {"keyframes", std::count(is_keyframe.begin(), is_keyframe.end(), true)}};
   metrics["memory"] = {{"peak_rss_mib", peak_rss_mib()}};
@@ -397,6 +406,10 @@ void add_run_command(CLI::App& root, CommandList* commands) {
                   "gets the time that is left (default: as fast as it can)");
   app->add_option("--threads", args->threads, "Threads for rendering and optimisation")
       ->capture_default_str();
+  server::add_setting_option(app, "--features", "features.autoencoder_path",
+                             "Distil image features into the Gaussians with these autoencoder weights "
+                             "(deploy/make_builtin_autoencoder.sh)",
+                             &args->config);
   server::add_setting_option(app, "--iterations", "mapper.iterations_per_keyframe",
                              "Gradient steps per keyframe", &args->config);
   server::add_setting_option(app, "--sh-degree", "mapper.sh_degree",

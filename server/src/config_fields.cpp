@@ -93,6 +93,9 @@ struct EnumCodec {
   }
 };
 
+const EnumNames<core::FeatureBackend> kFeatureBackends = {{core::FeatureBackend::builtin, "builtin"},
+                                                          {core::FeatureBackend::onnx, "onnx"}};
+
 const EnumNames<core::RobustKernel> kRobustKernels = {{core::RobustKernel::none, "none"},
                                                       {core::RobustKernel::huber, "huber"},
                                                       {core::RobustKernel::cauchy, "cauchy"}};
@@ -276,6 +279,25 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   weights.add("erank_ramp_steps", &Weights::erank_ramp_steps);
   weights.add("erank_epsilon", &Weights::erank_epsilon);
   weights.add("thin", &Weights::thin);
+
+  using Features = core::LatentFeaturesConfig;
+  const auto features = section(f, "features", [](auto& c) -> auto& { return c.pipeline.features; });
+  features.add("autoencoder_path", &Features::autoencoder_path);
+  features.add("grid_step", &Features::grid_step);
+  using Encoder = core::FeatureEncoderConfig;
+  const auto encoder = section(f, "features.encoder", [](auto& c) -> auto& { return c.pipeline.features.encoder; });
+  encoder.add("backend", &Encoder::backend, kFeatureBackends);
+  using Builtin = core::BuiltinFeatureConfig;
+  const auto builtin = section(f, "features.encoder.builtin",
+                               [](auto& c) -> auto& { return c.pipeline.features.encoder.builtin; });
+  builtin.add("input_width", &Builtin::input_width);
+  builtin.add("input_height", &Builtin::input_height);
+  using Onnx = core::OnnxFeatureConfig;
+  const auto onnx = section(f, "features.encoder.onnx",
+                            [](auto& c) -> auto& { return c.pipeline.features.encoder.onnx; });
+  onnx.add("model_path", &Onnx::model_path);
+  onnx.add("input_width", &Onnx::input_width);
+  onnx.add("input_height", &Onnx::input_height);
 
   using Pcc = core::PccConfig;
   const auto pcc = section(f, "mapper.loss.pcc", [](auto& c) -> auto& { return c.pipeline.mapper.loss.pcc; });

@@ -410,9 +410,14 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       std::string why, notice;
       std::shared_ptr<const core::Rasterizer> rasterizer = make_rasterizer("auto", &notice, &why);
       if (!rasterizer) return publish_result(msg.session, msg.request_id, map_name, why);
+      std::unique_ptr<core::LatentFeatures> features;
+      if (config_.pipeline.features.enabled()) {
+        features = core::LatentFeatures::create(config_.pipeline.features, &why);
+        if (!features) return publish_result(msg.session, msg.request_id, map_name, why);
+      }
       auto map = std::make_shared<MapEntry>();
       map->name = map_name;
-      map->pipeline = std::make_shared<core::SlamPipeline>(config_.pipeline, rasterizer);
+      map->pipeline = std::make_shared<core::SlamPipeline>(config_.pipeline, rasterizer, std::move(features));
       map->streaming = true;
       auto s = std::make_unique<Session>();
       s->name = name;

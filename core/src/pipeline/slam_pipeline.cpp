@@ -1,6 +1,7 @@
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <utility>
 
 #include "fslam/core/error.hpp"
@@ -12,12 +13,16 @@ bool PipelineConfig::is_valid(std::string* why) const {
   if (min_iterations_when_behind < 0 || idle_iterations < 0) {
     return fail(why, "pipeline: iteration counts must be >= 0");
   }
-  return true;
+  return features.is_valid(why);
 }
 
 SlamPipeline::SlamPipeline(const PipelineConfig& config,
-                           std::shared_ptr<const Rasterizer> rasterizer)
-    : config_(config), tracker_(config.tracker), mapper_(config.mapper, std::move(rasterizer)) {}
+                           std::shared_ptr<const Rasterizer> rasterizer,
+                           std::unique_ptr<LatentFeatures> features)
+    : config_(config),
+      tracker_(config.tracker),
+      mapper_(config.mapper, std::move(rasterizer)),
+      features_(std::move(features)) {}
 
 void SlamPipeline::set_initial_pose(const Eigen::Isometry3d& T_world_camera) {
   tracker_.set_initial_pose(T_world_camera);
@@ -59,6 +64,11 @@ std::size_t SlamPipeline::queued_keyframes() const {
 
 bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
                                std::string* why) {
+  if (features_ && features_->dim() != config_.mapper.feature_dim) {
+    return fail(why, "features: the autoencoder's latent has " + std::to_string(features_->dim()) +
+                         " channels but mapper.feature_dim is " +
+                         std::to_string(config_.mapper.feature_dim));
+  }
   for (;;) {
     MapperKeyframe kf;
     std::size_t waiting = 0;
@@ -90,6 +100,16 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
     mapper_.set_iterations_per_keyframe(iterations);
     KeyframeReport report;
     report.frame_id = kf.frame_id;
+    if (features_) {
+      // The latent target of L_feat (eq. modeling_losses) at the mapper's training resolution.
+      const auto t0 = std::chrono::steady_clock::now();
+      const PinholeCamera training = kf.camera.scaled(config_.mapper.training_scale);
+      if (!features_->latent_image(kf.colour, training.width, training.height, &kf.feature_target, why)) {
+        return false;
+      }
+      report.features_ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    }
     if (!mapper_.add_keyframe(kf, &report.refinement, why)) return false;
     report.map_size = mapper_.map().size();
     report.queue_depth = waiting;

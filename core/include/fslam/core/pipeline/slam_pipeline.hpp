@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "fslam/core/features/latent_features.hpp"
 #include "fslam/core/geometry/rgbd_frame.hpp"
 #include "fslam/core/mapping/mapper.hpp"
 #include "fslam/core/render/rasterizer.hpp"
@@ -28,6 +29,8 @@ struct PipelineConfig {
   bool realtime = false;
   int min_iterations_when_behind = 2;
   int idle_iterations = 5;
+  // Image features distilled into the Gaussians (off while features.autoencoder_path is empty).
+  LatentFeaturesConfig features;
   bool is_valid(std::string* why = nullptr) const;
 };
 
@@ -37,11 +40,15 @@ struct KeyframeReport {
   RefinementStats refinement;
   std::size_t map_size = 0;
   std::size_t queue_depth = 0;  // keyframes still waiting after this one
+  double features_ms = 0;       // encoder + autoencoder for the keyframe's latent target
 };
 
 class SlamPipeline {
  public:
-  SlamPipeline(const PipelineConfig& config, std::shared_ptr<const Rasterizer> rasterizer);
+  // features (optional): the keyframes' latent targets for the feature loss; its dim() must be
+  // the mapper's feature_dim (run_mapping fails and says so otherwise).
+  SlamPipeline(const PipelineConfig& config, std::shared_ptr<const Rasterizer> rasterizer,
+               std::unique_ptr<LatentFeatures> features = nullptr);
 
   // Tracker thread: preprocess -> feature-guided GICP (eq. feat_gicp) -> keyframe decision
   // (eq. keyframe_crit) -> hand the keyframe to mapping. Never blocks on the mapper.
@@ -75,6 +82,7 @@ class SlamPipeline {
   PipelineConfig config_;
   Tracker tracker_;
   Mapper mapper_;
+  std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<MapperKeyframe> queue_;

@@ -1,0 +1,115 @@
+// Per-pixel latents: the encoder's pyramid through phi on a grid, interpolated between.
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "fslam/core/features/latent_features.hpp"
+#include "test_support.hpp"
+
+namespace fslam::core {
+namespace {
+
+// Left half red cloth, right half blue plaster: two surfaces any encoder should tell apart.
+cv::Mat two_halves() {
+  cv::Mat rgb(240, 320, CV_8UC3);
+  std::mt19937 rng(4);
+  std::normal_distribution<float> n(0.0f, 6.0f);
+  for (int v = 0; v < rgb.rows; ++v)
+    for (int u = 0; u < rgb.cols; ++u) {
+      const bool left = u < rgb.cols / 2;
+      const float stripe = left ? 30.0f * ((u / 4) % 2) : 0.0f;
+      const cv::Vec3f base = left ? cv::Vec3f(190, 40, 40) : cv::Vec3f(60, 80, 200);
+      for (int c = 0; c < 3; ++c)
+        rgb.at<cv::Vec3b>(v, u)[c] = cv::saturate_cast<uchar>(base[c] + stripe + n(rng));
+    }
+  return rgb;
+}
+
+LatentFeaturesConfig small_config() {
+  LatentFeaturesConfig config;
+  config.encoder.builtin.input_width = 256;
+  config.encoder.builtin.input_height = 256;
+  return config;
+}
+
+// Weights for the builtin encoder at 256x256, briefly pretrained on the test image.
+std::string make_weights(const LatentFeaturesConfig& config) {
+  std::string why;
+  auto encoder = make_feature_encoder(config.encoder, &why);
+  EXPECT_NE(encoder, nullptr) << why;
+  FeaturePyramid pyramid;
+  EXPECT_TRUE(encoder->encode(two_halves(), &pyramid, &why)) << why;
+  FeatureAutoencoder ae;
+  AutoencoderPretrainOptions options;
+  options.steps = 150;
+  options.batch = 64;
+  options.pixels_per_image = 1000;
+  AutoencoderPretrainStats stats;
+  EXPECT_TRUE(pretrain_autoencoder({pyramid}, options, &ae, nullptr, &stats, &why)) << why;
+  const std::string path = (test::fresh_temp_dir("latent") / "w.fae").string();
+  EXPECT_TRUE(ae.save(path, &why)) << why;
+  return path;
+}
+
+TEST(LatentFeatures, LatentImageIsPhiOfThePyramidOnTheGrid) {
+  LatentFeaturesConfig config = small_config();
+  config.autoencoder_path = make_weights(config);
+  config.grid_step = 2;
+  std::string why;
+  auto latents = LatentFeatures::create(config, &why);
+  ASSERT_NE(latents, nullptr) << why;
+  const cv::Mat rgb = two_halves();
+  PlanarImage image;
+  ASSERT_TRUE(latents->latent_image(rgb, 80, 60, &image, &why)) << why;
+  ASSERT_EQ(image.channels, 16);
+  ASSERT_EQ(image.width, 80);
+  ASSERT_EQ(image.height, 60);
+  for (float v : image.data) ASSERT_TRUE(std::isfinite(v));
+
+  // At a grid node the latent is exactly phi(u) of the pyramid sample at that pixel's centre.
+  auto encoder = make_feature_encoder(config.encoder, &why);
+  FeaturePyramid pyramid;
+  ASSERT_TRUE(encoder->encode(rgb, &pyramid, &why)) << why;
+  FeatureAutoencoder ae;
+  ASSERT_TRUE(ae.load(config.autoencoder_path, &why)) << why;
+  const int x = 20, y = 30;  // even: a grid node
+  const std::vector<float> u = sample_features(pyramid, (x + 0.5f) * 4.0f - 0.5f, (y + 0.5f) * 4.0f - 0.5f);
+  std::vector<float> f(16);
+  ae.encode(u.data(), 1, f.data());
+  for (int c = 0; c < 16; ++c) EXPECT_NEAR(image.at(c, y, x), f[c], 1e-5f) << "channel " << c;
+
+  // The two surfaces: latents far apart across the boundary, close within each half.
+  auto distance = [&](int x0, int y0, int x1, int y1) {
+    double s = 0;
+    for (int c = 0; c < 16; ++c) s += std::pow(image.at(c, y0, x0) - image.at(c, y1, x1), 2);
+    return std::sqrt(s);
+  };
+  // Points at least 12 latent pixels (48 frame pixels) from the boundary and the image border:
+  // the coarse level pools over about that much.
+  const double within = std::max(distance(14, 25, 26, 35), distance(54, 25, 66, 35));
+  const double across = distance(20, 30, 60, 30);
+  EXPECT_GT(across, 2.0 * within) << "across " << across << ", within " << within;
+}
+
+TEST(LatentFeatures, MissingOrMismatchedWeightsAreClearErrors) {
+  LatentFeaturesConfig config = small_config();
+  std::string why;
+  EXPECT_EQ(LatentFeatures::create(config, &why), nullptr);
+  EXPECT_NE(why.find("autoencoder_path"), std::string::npos) << why;
+  config.autoencoder_path = "/nonexistent/w.fae";
+  EXPECT_EQ(LatentFeatures::create(config, &why), nullptr);
+  EXPECT_FALSE(why.empty());
+  // Weights for other level channels than the builtin encoder's.
+  FeatureAutoencoderConfig other;
+  other.level_channels = {8, 4, 2};
+  const std::string path = (test::fresh_temp_dir("mismatch") / "w.fae").string();
+  ASSERT_TRUE(FeatureAutoencoder(other).save(path, &why)) << why;
+  config.autoencoder_path = path;
+  EXPECT_EQ(LatentFeatures::create(config, &why), nullptr);
+  EXPECT_NE(why.find("features:"), std::string::npos) << why;
+}
+
+}  // namespace
+}  // namespace fslam::core
