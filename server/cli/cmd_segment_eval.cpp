@@ -1,0 +1,206 @@
+// `fslam segment-eval`: open-set segmentation of a saved feature map scored against a labelled
+// sequence's instances (docs/evaluation.md, "Open-set segmentation"): promptless instances as
+// Hungarian-matched mIoU over the evaluated views, and one click per visible object as mean
+// mask IoU. Views are rendered at the tracked poses of frames the mapper did not train on.
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+#include <tbb/global_control.h>
+
+#include "commands.hpp"
+#include "dataset_args.hpp"
+#include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/eval/segmentation_metrics.hpp"
+#include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/core/io/image_io.hpp"
+#include "fslam/core/io/trajectory_io.hpp"
+#include "fslam/core/segmentation/segmentation.hpp"
+#include "fslam/server/backend_factory.hpp"
+#include "fslam/server/render_images.hpp"
+
+namespace fslam::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct SegmentEvalArgs {
+  DatasetArgs dataset;
+  std::string ply, trajectory, out;
+  int every = 10, offset = 5;       // evaluated frames: positions offset, offset + every, ...
+  double min_object_share = 0.01;   // clicks only on objects covering this share of the view
+  int threads = 2;
+  int overlays = 4;                 // views written to --out
+  core::PromptlessConfig promptless;
+  core::PromptConfig prompt;
+};
+
+// A fixed colour per id for overlays.
+cv::Vec3b id_colour(int id) {
+  if (id < 0) return {0, 0, 0};
+  const unsigned h = static_cast<unsigned>(id) * 2654435761u;
+  return {static_cast<uchar>(64 + (h & 0x7f)), static_cast<uchar>(64 + ((h >> 8) & 0x7f)),
+          static_cast<uchar>(64 + ((h >> 16) & 0x7f))};
+}
+
+// The pixel of `object` farthest from its outline: where a user would click.
+bool click_point(const cv::Mat& object, cv::Point* at) {
+  cv::Mat distance;
+  cv::distanceTransform(object, distance, cv::DIST_L2, 3);
+  double best = 0;
+  cv::minMaxLoc(distance, nullptr, &best, nullptr, at);
+  return best >= 2.0;
+}
+
+int run_segment_eval(const SegmentEvalArgs& args) {
+  std::string why;
+  core::DatasetOptions options;
+  if (!args.dataset.to_options(&options, &why)) return fail(why);
+  auto dataset = core::open_dataset(args.dataset.path, options, &why);
+  if (!dataset) return fail(why);
+  core::GaussianMap map;
+  if (!core::read_gaussian_ply(args.ply, &map, &why)) return fail(why);
+  if (map.feature_dim == 0) return fail(args.ply + " carries no features (run fslam run --features)");
+  core::Trajectory trajectory;
+  if (!core::read_tum_trajectory(args.trajectory, &trajectory, &why)) return fail(why);
+  if (args.every < 1 || args.offset < 0) return fail("--every must be >= 1 and --offset >= 0");
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                              static_cast<std::size_t>(std::max(1, args.threads)));
+  std::string notice;
+  auto rasterizer = server::make_rasterizer("auto", &notice, &why);
+  if (!rasterizer) return fail(why);
+  if (!args.out.empty()) fs::create_directories(args.out);
+
+  core::GaussianLabels labels;
+  if (!core::cluster_instances(map, args.promptless, &labels, &why)) return fail(why);
+  std::printf("map: %zu Gaussians, %d channels; promptless: %d instances\n", map.size(),
+              map.feature_dim, labels.count);
+
+  core::InstanceConfusion confusion;
+  std::vector<double> click_iou;
+  std::size_t views = 0, failed_clicks = 0;
+  for (std::size_t i = static_cast<std::size_t>(args.offset); i < dataset->size();
+       i += static_cast<std::size_t>(args.every)) {
+    cv::Mat truth;
+    if (!dataset->load_labels(i, &truth, nullptr, &why) || truth.empty()) {
+      return fail("frame " + std::to_string(i) + " has no instance labels: " + why);
+    }
+    const double t = dataset->timestamp(i);
+    const core::StampedPose* pose = nullptr;
+    for (const auto& p : trajectory)
+      if (!pose || std::abs(p.timestamp - t) < std::abs(pose->timestamp - t)) pose = &p;
+    if (!pose || std::abs(pose->timestamp - t) > 0.02) continue;  // untracked frame
+    core::RenderView view;
+    view.camera = dataset->camera();
+    view.T_camera_world = pose->T_world_camera.inverse();
+    cv::Mat ids;
+    if (!core::render_labels(*rasterizer, map, labels, view, 0.5f, &ids, &why)) return fail(why);
+    if (truth.type() != CV_16UC1) truth.convertTo(truth, CV_16UC1);
+    if (!confusion.add(ids, truth, &why)) return fail(why);
+
+    // One click per object covering enough of the view.
+    std::vector<int> present;
+    {
+      std::map<int, int> area;
+      for (int v = 0; v < truth.rows; ++v)
+        for (int u = 0; u < truth.cols; ++u) ++area[truth.at<std::uint16_t>(v, u)];
+      for (const auto& [id, n] : area)
+        if (id != 0 && n >= args.min_object_share * truth.total()) present.push_back(id);
+    }
+    cv::Mat overlay_masks;
+    for (int id : present) {
+      const cv::Mat object = truth == id;
+      cv::Point at;
+      if (!click_point(object, &at)) continue;
+      std::vector<std::uint8_t> selected;
+      cv::Mat mask;
+      std::string click_why;
+      if (!core::select_by_points(*rasterizer, map, view, {{at.x, at.y}}, args.prompt, &selected, &click_why) ||
+          !core::render_selection(*rasterizer, map, selected, view, 0.5f, &mask, &why)) {
+        ++failed_clicks;  // scored as IoU 0: the click found nothing
+        click_iou.push_back(0.0);
+        continue;
+      }
+      click_iou.push_back(std::max(0.0, core::mask_iou(mask, truth, id)));
+    }
+    if (!args.out.empty() && static_cast<int>(views) < args.overlays) {
+      core::RenderResult r;
+      core::RenderSettings settings;
+      settings.features = false;
+      if (!rasterizer->forward(map, view, settings, &r, &why)) return fail(why);
+      cv::Mat colour = server::colour_to_rgb8(r.colour), coded(ids.size(), CV_8UC3), truth_coded(ids.size(), CV_8UC3);
+      for (int v = 0; v < ids.rows; ++v)
+        for (int u = 0; u < ids.cols; ++u) {
+          coded.at<cv::Vec3b>(v, u) = id_colour(ids.at<int>(v, u));
+          truth_coded.at<cv::Vec3b>(v, u) = id_colour(truth.at<std::uint16_t>(v, u) + 1000);
+        }
+      cv::Mat blended, panel;
+      cv::addWeighted(colour, 0.5, coded, 0.5, 0.0, blended);
+      cv::hconcat(std::vector<cv::Mat>{colour, blended, truth_coded}, panel);
+      char name[64];
+      std::snprintf(name, sizeof name, "promptless_%06zu.png", i);
+      if (!core::write_image((fs::path(args.out) / name).string(), panel, &why)) return fail(why);
+    }
+    ++views;
+  }
+  if (views == 0) return fail("no evaluated frame has a tracked pose in " + args.trajectory);
+  const core::InstanceConfusion::Score score = confusion.score();
+  double click_mean = 0;
+  for (double v : click_iou) click_mean += v;
+  click_mean = click_iou.empty() ? 0.0 : click_mean / static_cast<double>(click_iou.size());
+  std::printf("views %zu (every %d frames from %d)\n", views, args.every, args.offset);
+  std::printf("promptless: mIoU %.3f, mAcc %.3f over %zu ground-truth instances (%d predicted)\n",
+              score.miou, score.macc, score.scored, labels.count);
+  std::printf("one click per object: mean IoU %.3f over %zu clicks (%zu found nothing)\n", click_mean,
+              click_iou.size(), failed_clicks);
+  if (!args.out.empty()) {
+    nlohmann::json j;
+    j["views"] = views;
+    j["promptless"] = {{"miou", score.miou}, {"macc", score.macc}, {"instances_scored", score.scored},
+                       {"instances_predicted", labels.count}};
+    nlohmann::json per;
+    for (const auto& [id, iou] : score.iou) per[std::to_string(id)] = iou;
+    j["promptless"]["iou_per_instance"] = per;
+    j["one_click"] = {{"mean_iou", click_mean}, {"clicks", click_iou.size()}, {"failed", failed_clicks}};
+    std::ofstream(fs::path(args.out) / "segmentation.json") << j.dump(2) << "\n";
+    std::printf("wrote %s/segmentation.json and overlays\n", args.out.c_str());
+  }
+  return 0;
+}
+
+}  // namespace
+
+void add_segment_eval_command(CLI::App& root, CommandList* commands) {
+  auto* app = root.add_subcommand(
+      "segment-eval", "Score open-set segmentation of a feature map against a labelled sequence "
+                      "(promptless mIoU, one-click IoU)");
+  auto args = std::make_shared<SegmentEvalArgs>();
+  add_dataset_options(app, &args->dataset);
+  app->add_option("--ply", args->ply, "The map (fslam run --features ... writes map.ply)")->required();
+  app->add_option("--trajectory", args->trajectory, "Poses of the map's frame (fslam run's trajectory.txt)")
+      ->required();
+  app->add_option("--every", args->every, "Evaluate every N-th frame ...")->capture_default_str();
+  app->add_option("--offset", args->offset, "... starting at this position")->capture_default_str();
+  app->add_option("--out", args->out, "Folder for segmentation.json and overlays");
+  app->add_option("--threads", args->threads, "Rendering threads")->capture_default_str();
+  app->add_option("--feature-threshold", args->promptless.graph.feature_threshold,
+                  "Promptless: RMS latent difference joining neighbours")
+      ->capture_default_str();
+  app->add_option("--prompt-threshold", args->prompt.graph.feature_threshold,
+                  "Prompts: RMS latent difference to the prompt")
+      ->capture_default_str();
+  app->add_option("--min-instance", args->promptless.min_instance_gaussians,
+                  "Promptless: smaller regions merge into a neighbour")
+      ->capture_default_str();
+  commands->push_back({app, [args] { return run_segment_eval(*args); }});
+}
+
+}  // namespace fslam::cli
