@@ -104,6 +104,22 @@ CameraIntrinsics from_wire(const fslam_proto_Intrinsics& k) {
   return {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
 }
 
+void to_wire(const CameraView& view, fslam_proto_RenderRequest* r) {
+  for (int k = 0; k < 3; ++k) r->T_world_camera.translation[k] = view.translation[k];
+  for (int k = 0; k < 4; ++k) r->T_world_camera.rotation[k] = view.rotation[k];
+  const CameraIntrinsics& k = view.intrinsics;
+  r->intrinsics = {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
+  r->from_frame = view.from_frame;
+  r->frame_id = view.frame_id;
+}
+
+// A sequence<float> on the wire that borrows `values`.
+auto wire_floats(std::vector<float>& values) {
+  return decltype(fslam_proto_SegmentRequest::points){static_cast<std::uint32_t>(values.size()),
+                                                      static_cast<std::uint32_t>(values.size()),
+                                                      values.data(), false};
+}
+
 }  // namespace
 
 Client::Client(const ClientOptions& options) : id_(make_client_id()) {
@@ -256,15 +272,9 @@ bool Client::render(const RenderQuery& query, RenderOutput* output, int timeout_
   msg.map_name = map.data();
   msg.kind = fslam_proto_REQUEST_RENDER;
   msg.path = empty.data();
-  fslam_proto_RenderRequest& r = msg.render;
-  for (int k = 0; k < 3; ++k) r.T_world_camera.translation[k] = query.translation[k];
-  for (int k = 0; k < 4; ++k) r.T_world_camera.rotation[k] = query.rotation[k];
-  const CameraIntrinsics& k = query.intrinsics;
-  r.intrinsics = {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
-  r.channels = query.channels;
-  r.depth_scale = query.depth_scale;
-  r.from_frame = query.from_frame;
-  r.frame_id = query.frame_id;
+  to_wire(query, &msg.render);
+  msg.render.channels = query.channels;
+  msg.render.depth_scale = query.depth_scale;
   Answer answer;
   if (!call(request_writer_.get(), &msg, id_, msg.request_id, "render map '" + map + "'",
             timeout_ms, &answer, why)) {
@@ -280,6 +290,50 @@ bool Client::render(const RenderQuery& query, RenderOutput* output, int timeout_
     return fail(why, "render map '" + map + "': the server sent " +
                          std::to_string(output->images.size()) + " images for the channels asked");
   }
+  return true;
+}
+
+bool Client::segment(const SegmentQuery& query, SegmentOutput* output, int timeout_ms,
+                     std::string* why) {
+  if (query.map_name.empty()) return fail(why, "segment: no map name");
+  fslam_proto_Request msg{};
+  std::string client = id_, map = query.map_name, text = query.text, empty;
+  std::vector<float> points = query.points, boxes = query.boxes;
+  msg.client = client.data();
+  msg.request_id = new_request_id();
+  msg.map_name = map.data();
+  msg.kind = fslam_proto_REQUEST_SEGMENT;
+  msg.path = empty.data();
+  to_wire(query.view, &msg.render);
+  fslam_proto_SegmentRequest& s = msg.segment;
+  switch (query.mode) {
+    case SegmentMode::points: s.mode = fslam_proto_SEGMENT_POINTS; break;
+    case SegmentMode::boxes: s.mode = fslam_proto_SEGMENT_BOXES; break;
+    case SegmentMode::text: s.mode = fslam_proto_SEGMENT_TEXT; break;
+    default: s.mode = fslam_proto_SEGMENT_PROMPTLESS;
+  }
+  s.points = wire_floats(points);
+  s.boxes = wire_floats(boxes);
+  s.text = text.data();
+  s.has_output_view = query.has_output_view;
+  to_wire(query.output_view, &s.output_view);
+  Answer answer;
+  if (!call(request_writer_.get(), &msg, id_, msg.request_id, "segment map '" + map + "'",
+            timeout_ms, &answer, why)) {
+    return false;
+  }
+  RenderOutput& r = answer.render;
+  if (r.images.size() != 2) {
+    return fail(why, "segment map '" + map + "': the server sent " + std::to_string(r.images.size()) +
+                         " images, expected labels and colour");
+  }
+  output->labels = std::move(r.images[0]);
+  output->colour = std::move(r.images[1]);
+  for (int k = 0; k < 3; ++k) output->translation[k] = r.translation[k];
+  for (int k = 0; k < 4; ++k) output->rotation[k] = r.rotation[k];
+  output->intrinsics = r.intrinsics;
+  output->map_version = r.map_version;
+  output->map_gaussians = r.map_gaussians;
   return true;
 }
 

@@ -16,19 +16,26 @@ void add_client_options(CLI::App* app, ClientArgs* args) {
       ->capture_default_str();
 }
 
-bool parse_pose_text(const std::string& text, double translation[3], double rotation[4],
-                     std::string* why) {
-  std::vector<double> v;
+bool parse_numbers(const std::string& text, const std::string& flag, std::vector<double>* values,
+                   std::string* why) {
+  values->clear();
   std::stringstream ss(text);
   std::string item;
   while (std::getline(ss, item, ',')) {
     double x = 0;
     if (!core::parse_double(item, &x) || !std::isfinite(x)) {
-      *why = "--pose: '" + item + "' is not a number";
+      *why = flag + ": '" + item + "' is not a number";
       return false;
     }
-    v.push_back(x);
+    values->push_back(x);
   }
+  return true;
+}
+
+bool parse_pose_text(const std::string& text, double translation[3], double rotation[4],
+                     std::string* why) {
+  std::vector<double> v;
+  if (!parse_numbers(text, "--pose", &v, why)) return false;
   if (v.size() != 7) {
     *why = "--pose expects tx,ty,tz,qx,qy,qz,qw (7 numbers), got " + std::to_string(v.size());
     return false;
@@ -41,6 +48,33 @@ bool parse_pose_text(const std::string& text, double translation[3], double rota
   for (int k = 0; k < 3; ++k) translation[k] = v[k];
   for (int k = 0; k < 4; ++k) rotation[k] = v[3 + k] / norm;
   return true;
+}
+
+bool parse_camera_text(const std::string& text, client::CameraIntrinsics* camera, std::string* why) {
+  std::vector<double> v;
+  if (!parse_numbers(text, "--camera", &v, why)) return false;
+  if (v.size() != 6 || v[4] < 1 || v[5] < 1) {
+    *why = "--camera expects fx,fy,cx,cy,width,height";
+    return false;
+  }
+  *camera = {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2]),
+             static_cast<float>(v[3]), static_cast<std::uint32_t>(v[4]), static_cast<std::uint32_t>(v[5])};
+  return true;
+}
+
+bool parse_view(const std::string& pose, long long frame, const std::string& camera,
+                client::CameraView* view, std::string* why) {
+  if (pose.empty() == (frame < 0)) {
+    *why = "give exactly one of --pose and --frame";
+    return false;
+  }
+  if (!pose.empty()) {
+    if (!parse_pose_text(pose, view->translation, view->rotation, why)) return false;
+  } else {
+    view->from_frame = true;
+    view->frame_id = static_cast<std::uint64_t>(frame);
+  }
+  return camera.empty() || parse_camera_text(camera, &view->intrinsics, why);
 }
 
 }  // namespace fslam::cli

@@ -21,7 +21,6 @@
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/image_io.hpp"
-#include "fslam/core/io/text_tables.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/render_images.hpp"
@@ -76,26 +75,7 @@ int render_from_server(const RenderArgs& args, const std::vector<std::uint32_t>&
   std::string why;
   client::RenderQuery query;
   query.map_name = args.map;
-  if (!args.pose.empty()) {
-    if (!parse_pose_text(args.pose, query.translation, query.rotation, &why)) return fail(why);
-  } else {
-    query.from_frame = true;
-    query.frame_id = static_cast<std::uint64_t>(args.frame);
-  }
-  if (!args.camera.empty()) {
-    std::vector<double> v;
-    std::stringstream ss(args.camera);
-    std::string item;
-    double x = 0;
-    while (std::getline(ss, item, ',')) {
-      if (!core::parse_double(item, &x)) return fail("--camera: '" + item + "' is not a number");
-      v.push_back(x);
-    }
-    if (v.size() != 6) return fail("--camera expects fx,fy,cx,cy,width,height");
-    query.intrinsics = {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2]),
-                        static_cast<float>(v[3]), static_cast<std::uint32_t>(v[4]),
-                        static_cast<std::uint32_t>(v[5])};
-  }
+  if (!parse_view(args.pose, args.frame, args.camera, &query, &why)) return fail(why);
   query.channels = 0;
   for (std::uint32_t bit : bits) query.channels |= bit;
   query.depth_scale = 1000.0f;

@@ -25,6 +25,7 @@ void add_info_command(CLI::App& root, CommandList* commands);
 void add_track_command(CLI::App& root, CommandList* commands);
 void add_run_command(CLI::App& root, CommandList* commands);
 void add_render_command(CLI::App& root, CommandList* commands);
+void add_segment_command(CLI::App& root, CommandList* commands);
 void add_stream_command(CLI::App& root, CommandList* commands);
 void add_serve_command(CLI::App& root, CommandList* commands);
 void add_map_commands(CLI::App& root, CommandList* commands);  // status, save-map, load-map

@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   fslam::cli::add_track_command(app, &commands);
   fslam::cli::add_run_command(app, &commands);
   fslam::cli::add_render_command(app, &commands);
+  fslam::cli::add_segment_command(app, &commands);
   fslam::cli::add_stream_command(app, &commands);
   fslam::cli::add_serve_command(app, &commands);
   fslam::cli::add_map_commands(app, &commands);

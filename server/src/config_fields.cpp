@@ -321,6 +321,9 @@ void add_server_fields(std::vector<ConfigField>* f) {
   server.add("query_threads", &ServerConfig::query_threads);
   server.add("query_queue_capacity", &ServerConfig::query_queue_capacity);
   server.add("max_render_pixels", &ServerConfig::max_render_pixels);
+  server.add("grounding_model", &ServerConfig::grounding_model);
+  server.add("grounding_input_size", &ServerConfig::grounding_input_size);
+  server.add("grounding_box_threshold", &ServerConfig::grounding_box_threshold);
 }
 
 // ---- lookup and messages ---------------------------------------------------------------------

@@ -14,6 +14,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/segmentation/segmentation.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/frame_codec.hpp"
 #include "fslam/server/map_files.hpp"
@@ -24,6 +25,13 @@ namespace fslam::server {
 using client::check_dds;
 using client::Entity;
 using Clock = std::chrono::steady_clock;
+
+// The promptless instances of one map version (docs/segmentation.md).
+struct InstanceLabels {
+  std::uint64_t version_number = 0;
+  core::MapVersions::Version map;  // the version labelled; null before the first request
+  std::shared_ptr<const core::GaussianLabels> labels;
+};
 
 // A map the server serves: built by a streaming session (pipeline) or loaded from disk (loaded).
 // Kept after its session closes, so that it can still be queried and saved.
@@ -37,6 +45,10 @@ struct Server::MapEntry {
   std::unordered_map<std::uint64_t, std::size_t> pose_index;  // frame id -> poses[]
   bool streaming = false;
   std::pair<std::uint64_t, std::size_t> saved{0, 0};  // (version, poses) last saved at home
+  // Held while clustering (apart from `mutex`, which tracking takes per frame), so that each
+  // clustering carries its ids from the one before: ids form one chain over the versions.
+  std::mutex instances_mutex;
+  InstanceLabels instances;  // guarded by instances_mutex
 
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
 };
@@ -69,6 +81,12 @@ struct Server::Query {
   std::uint64_t request_id = 0;
   fslam_proto_RequestKind kind = fslam_proto_REQUEST_RENDER;
   fslam_proto_RenderRequest render{};
+  // REQUEST_SEGMENT
+  fslam_proto_SegmentMode segment_mode = fslam_proto_SEGMENT_PROMPTLESS;
+  std::vector<float> points, boxes;
+  std::string text;
+  bool has_output_view = false;
+  fslam_proto_RenderRequest output_view{};
 };
 
 namespace {
@@ -122,6 +140,51 @@ bool from_wire(const fslam_proto_Pose& pose, Eigen::Isometry3d* T, std::string* 
 
 const char* text(const char* s) { return s != nullptr ? s : ""; }
 
+template <class Sequence>
+std::vector<float> floats(const Sequence& seq) {
+  return seq._buffer == nullptr ? std::vector<float>{}
+                                : std::vector<float>(seq._buffer, seq._buffer + seq._length);
+}
+
+// A map whose latents are all alike carries no features to segment by: feature_dim 0, or a map
+// built without an encoder (every latent left at its initial value).
+bool has_features(const core::GaussianMap& map) {
+  if (map.feature_dim <= 0 || map.features.empty()) return false;
+  const auto [lo, hi] = std::minmax_element(map.features.begin(), map.features.end());
+  return *hi > *lo;
+}
+
+// Result images as PNG on the wire; `images` point into `buffers`.
+bool attach_images(const std::vector<cv::Mat>& mats, fslam_proto_Result* result,
+                   std::vector<std::vector<std::uint8_t>>* buffers,
+                   std::vector<fslam_proto_Image>* images) {
+  buffers->resize(mats.size());
+  images->resize(mats.size());
+  for (std::size_t i = 0; i < mats.size(); ++i) {
+    const cv::Mat& image = mats[i];
+    if (!encode_png(image, &(*buffers)[i])) return false;
+    (*images)[i] = {fslam_proto_ENCODING_PNG,
+                    static_cast<std::uint32_t>(image.cols),
+                    static_cast<std::uint32_t>(image.rows),
+                    static_cast<std::uint8_t>(image.channels()),
+                    static_cast<std::uint8_t>(image.elemSize1()),
+                    {static_cast<std::uint32_t>((*buffers)[i].size()),
+                     static_cast<std::uint32_t>((*buffers)[i].size()), (*buffers)[i].data(), false}};
+  }
+  result->images = {static_cast<std::uint32_t>(images->size()),
+                    static_cast<std::uint32_t>(images->size()), images->data(), false};
+  return true;
+}
+
+void describe_view(const core::RenderView& view, const Eigen::Isometry3d& T_world_camera,
+                   fslam_proto_Result* result) {
+  to_wire(T_world_camera, &result->T_world_camera);
+  result->intrinsics = {static_cast<float>(view.camera.fx), static_cast<float>(view.camera.fy),
+                        static_cast<float>(view.camera.cx), static_cast<float>(view.camera.cy),
+                        static_cast<std::uint32_t>(view.camera.width),
+                        static_cast<std::uint32_t>(view.camera.height)};
+}
+
 }  // namespace
 
 bool ServerConfig::is_valid(std::string* why) const {
@@ -131,6 +194,7 @@ bool ServerConfig::is_valid(std::string* why) const {
   if (query_threads < 1) return core::fail(why, "server: query_threads must be >= 1");
   if (query_queue_capacity == 0) return core::fail(why, "server: query_queue_capacity must be > 0");
   if (max_render_pixels == 0) return core::fail(why, "server: max_render_pixels must be > 0");
+  if (!grounding().is_valid(why)) return false;
   return pipeline.is_valid(why);
 }
 
@@ -158,6 +222,14 @@ bool Server::activate(std::string* why) {
   std::string notice;
   query_rasterizer_ = make_rasterizer("auto", &notice, why);
   if (!query_rasterizer_) return false;
+  grounding_.reset();
+  if (!config_.grounding_model.empty()) {
+    // A configured model that does not load is a start-up error, not a surprise at the first query.
+    auto detector = std::make_unique<GroundingDetector>();
+    if (!detector->load(config_.grounding(), why)) return false;
+    grounding_ = std::move(detector);
+    log("grounding model " + config_.grounding_model + " loaded for text queries");
+  }
   if (!config_.map_dir.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(config_.map_dir, ec);
@@ -582,6 +654,15 @@ void Server::accept_request(const fslam_proto_Request& msg) {
   query->path = text(msg.path);
   query->kind = msg.kind;
   query->render = msg.render;
+  if (msg.kind == fslam_proto_REQUEST_SEGMENT) {
+    const fslam_proto_SegmentRequest& seg = msg.segment;
+    query->segment_mode = seg.mode;
+    query->points = floats(seg.points);
+    query->boxes = floats(seg.boxes);
+    query->text = text(seg.text);
+    query->has_output_view = seg.has_output_view;
+    query->output_view = seg.output_view;
+  }
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (queries_.size() < config_.query_queue_capacity) {
@@ -622,6 +703,10 @@ void Server::answer(const Query& query) {
       if (!map) why = "no map named '" + query.map_name + "'";
       else ok = render(query, *map, &r, &buffers, &images, &why);
       break;
+    case fslam_proto_REQUEST_SEGMENT:
+      if (!map) why = "no map named '" + query.map_name + "'";
+      else ok = segment(query, *map, &r, &buffers, &images, &why);
+      break;
     case fslam_proto_REQUEST_SAVE_MAP:
       if (!map) why = "no map named '" + query.map_name + "'";
       else ok = resolve_map_folder(config_.map_dir, query.path, query.map_name, &folder, &why) &&
@@ -635,7 +720,7 @@ void Server::answer(const Query& query) {
     default:
       why = "unknown request kind " + std::to_string(static_cast<int>(query.kind));
   }
-  if (ok && query.kind != fslam_proto_REQUEST_RENDER) {
+  if (ok && query.kind != fslam_proto_REQUEST_RENDER && query.kind != fslam_proto_REQUEST_SEGMENT) {
     const std::shared_ptr<MapEntry> now = find_map(query.map_name);
     r.map_version = now->versions().version_number();
     r.map_gaussians = now->versions().latest()->size();
@@ -652,6 +737,40 @@ void Server::answer(const Query& query) {
   ++(ok ? stats_.requests_answered : stats_.requests_failed);
 }
 
+bool Server::resolve_view(const fslam_proto_RenderRequest& req, MapEntry& map, core::RenderView* view,
+                          Eigen::Isometry3d* T_world_camera, std::string* why) const {
+  {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    if (req.from_frame) {
+      const auto it = map.pose_index.find(req.frame_id);
+      if (it == map.pose_index.end()) {
+        return core::fail(why, "map '" + map.name + "' has no tracked pose for frame " +
+                                   std::to_string(req.frame_id));
+      }
+      *T_world_camera = map.poses[it->second].T_world_camera;
+    } else if (!from_wire(req.T_world_camera, T_world_camera, why)) {
+      return false;
+    }
+    view->camera = map.camera;
+  }
+  const fslam_proto_Intrinsics& k = req.intrinsics;
+  if (k.width != 0) {
+    view->camera = {k.fx, k.fy, k.cx, k.cy, static_cast<int>(k.width), static_cast<int>(k.height)};
+  } else if (view->camera.width == 0) {
+    return core::fail(why, "map '" + map.name + "' has no camera of its own; give intrinsics");
+  }
+  std::string reason;
+  if (!view->camera.is_valid(&reason)) return core::fail(why, "intrinsics: " + reason);
+  if (static_cast<std::uint64_t>(view->camera.width) * static_cast<std::uint64_t>(view->camera.height) >
+      config_.max_render_pixels) {
+    return core::fail(why, std::to_string(view->camera.width) + "x" +
+                               std::to_string(view->camera.height) + " is over the server's limit of " +
+                               std::to_string(config_.max_render_pixels) + " pixels");
+  }
+  view->T_camera_world = T_world_camera->inverse();
+  return true;
+}
+
 bool Server::render(const Query& query, MapEntry& map, fslam_proto_Result* result,
                     std::vector<std::vector<std::uint8_t>>* buffers,
                     std::vector<fslam_proto_Image>* images, std::string* why) {
@@ -665,62 +784,195 @@ bool Server::render(const Query& query, MapEntry& map, fslam_proto_Result* resul
   if (!(depth_scale > 0) || !std::isfinite(depth_scale)) return core::fail(why, "render: depth_scale must be positive");
   core::RenderView view;
   Eigen::Isometry3d T_world_camera;
-  {
-    std::lock_guard<std::mutex> lock(map.mutex);
-    if (req.from_frame) {
-      const auto it = map.pose_index.find(req.frame_id);
-      if (it == map.pose_index.end()) {
-        return core::fail(why, "render: map '" + map.name + "' has no tracked pose for frame " +
-                                   std::to_string(req.frame_id));
-      }
-      T_world_camera = map.poses[it->second].T_world_camera;
-    } else if (!from_wire(req.T_world_camera, &T_world_camera, why)) {
-      return false;
-    }
-    view.camera = map.camera;
-  }
-  const fslam_proto_Intrinsics& k = req.intrinsics;
-  if (k.width != 0) {
-    view.camera = {k.fx, k.fy, k.cx, k.cy, static_cast<int>(k.width), static_cast<int>(k.height)};
-  } else if (view.camera.width == 0) {
-    return core::fail(why, "render: map '" + map.name + "' has no camera of its own; give intrinsics");
-  }
   std::string reason;
-  if (!view.camera.is_valid(&reason)) return core::fail(why, "render: intrinsics: " + reason);
-  if (static_cast<std::uint64_t>(view.camera.width) * static_cast<std::uint64_t>(view.camera.height) >
-      config_.max_render_pixels) {
-    return core::fail(why, "render: " + std::to_string(view.camera.width) + "x" +
-                               std::to_string(view.camera.height) + " is over the server's limit of " +
-                               std::to_string(config_.max_render_pixels) + " pixels");
-  }
-  view.T_camera_world = T_world_camera.inverse();
+  if (!resolve_view(req, map, &view, &T_world_camera, &reason)) return core::fail(why, "render: " + reason);
   const std::uint64_t version_number = map.versions().version_number();
   const core::MapVersions::Version version = map.versions().latest();
   core::RenderSettings settings;
   settings.features = false;
   core::RenderResult rendered;
   if (!query_rasterizer_->forward(*version, view, settings, &rendered, why)) return false;
-  std::vector<ChannelImage> channels = render_channels(rendered, view.camera, req.channels, depth_scale);
-  buffers->resize(channels.size());
-  images->resize(channels.size());
-  for (std::size_t i = 0; i < channels.size(); ++i) {
-    const cv::Mat& image = channels[i].image;
-    if (!encode_png(image, &(*buffers)[i])) return core::fail(why, "render: cannot encode a result image");
-    (*images)[i] = {fslam_proto_ENCODING_PNG,
-                 static_cast<std::uint32_t>(image.cols),
-                 static_cast<std::uint32_t>(image.rows),
-                 static_cast<std::uint8_t>(image.channels()),
-                 static_cast<std::uint8_t>(image.elemSize1()),
-                 {static_cast<std::uint32_t>((*buffers)[i].size()),
-                  static_cast<std::uint32_t>((*buffers)[i].size()), (*buffers)[i].data(), false}};
+  std::vector<cv::Mat> mats;
+  for (ChannelImage& channel : render_channels(rendered, view.camera, req.channels, depth_scale)) {
+    mats.push_back(channel.image);
   }
-  result->images = {static_cast<std::uint32_t>(images->size()),
-                    static_cast<std::uint32_t>(images->size()), images->data(), false};
-  to_wire(T_world_camera, &result->T_world_camera);
-  result->intrinsics = {static_cast<float>(view.camera.fx), static_cast<float>(view.camera.fy),
-                        static_cast<float>(view.camera.cx), static_cast<float>(view.camera.cy),
-                        static_cast<std::uint32_t>(view.camera.width),
-                        static_cast<std::uint32_t>(view.camera.height)};
+  if (!attach_images(mats, result, buffers, images)) return core::fail(why, "render: cannot encode a result image");
+  describe_view(view, T_world_camera, result);
+  result->map_version = version_number;
+  result->map_gaussians = version->size();
+  return true;
+}
+
+namespace {
+
+std::string number(double x) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", x);
+  return text;
+}
+
+// Checks the prompts of a segment request against their mode and the prompt view; `boxes` gets
+// the box prompts. Cheap checks only: nothing is rendered.
+bool check_prompts(const fslam_proto_SegmentMode mode, const std::vector<float>& points,
+                   const std::vector<float>& box_values, const core::PinholeCamera& camera,
+                   std::vector<Eigen::Vector2d>* uv, std::vector<core::BoxPrompt>* boxes,
+                   std::string* why) {
+  const double w = camera.width, h = camera.height;
+  const std::string size = std::to_string(camera.width) + "x" + std::to_string(camera.height);
+  if (mode == fslam_proto_SEGMENT_POINTS) {
+    if (points.empty()) return core::fail(why, "segment: a point query needs at least one point (u, v)");
+    if (points.size() % 2 != 0) {
+      return core::fail(why, "segment: points are u, v pairs; got an odd number of coordinates (" +
+                                 std::to_string(points.size()) + ")");
+    }
+    for (std::size_t i = 0; i < points.size(); i += 2) {
+      const double u = points[i], v = points[i + 1];
+      // Pixel centres at integers: a point belongs to the view when it rounds into its grid.
+      if (!(u >= -0.5 && u < w - 0.5 && v >= -0.5 && v < h - 0.5)) {
+        return core::fail(why, "segment: point (" + number(u) + ", " + number(v) +
+                                   ") lies outside the " + size + " view");
+      }
+      uv->emplace_back(u, v);
+    }
+  } else if (mode == fslam_proto_SEGMENT_BOXES) {
+    if (box_values.empty()) return core::fail(why, "segment: a box query needs at least one box (u0, v0, u1, v1)");
+    if (box_values.size() % 4 != 0) {
+      return core::fail(why, "segment: boxes are u0, v0, u1, v1 quadruples; got " +
+                                 std::to_string(box_values.size()) + " numbers");
+    }
+    for (std::size_t i = 0; i < box_values.size(); i += 4) {
+      const core::BoxPrompt b{box_values[i], box_values[i + 1], box_values[i + 2], box_values[i + 3]};
+      const std::string name = "box (" + number(b.u0) + ", " + number(b.v0) + ", " + number(b.u1) +
+                               ", " + number(b.v1) + ")";
+      if (!(b.u1 > b.u0 && b.v1 > b.v0)) {
+        return core::fail(why, "segment: " + name + " is empty: it needs u1 > u0 and v1 > v0");
+      }
+      if (!(b.u0 >= 0 && b.v0 >= 0 && b.u1 <= w && b.v1 <= h)) {
+        return core::fail(why, "segment: " + name + " reaches outside the " + size + " view");
+      }
+      boxes->push_back(b);
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* result,
+                     std::vector<std::vector<std::uint8_t>>* buffers,
+                     std::vector<fslam_proto_Image>* images, std::string* why) {
+  const fslam_proto_SegmentMode mode = query.segment_mode;
+  if (mode != fslam_proto_SEGMENT_PROMPTLESS && mode != fslam_proto_SEGMENT_POINTS &&
+      mode != fslam_proto_SEGMENT_BOXES && mode != fslam_proto_SEGMENT_TEXT) {
+    return core::fail(why, "segment: unknown mode " + std::to_string(static_cast<int>(mode)));
+  }
+  if (mode == fslam_proto_SEGMENT_TEXT) {
+    if (query.text.find_first_not_of(" \t\r\n") == std::string::npos) {
+      return core::fail(why, "segment: a text query needs a text");
+    }
+    if (!grounding_) {
+      return core::fail(why, "text queries need a grounding detector: set server.grounding_model to "
+                             "an ONNX model (docs/segmentation.md)");
+    }
+  }
+  core::RenderView view, out_view;
+  Eigen::Isometry3d T_world_camera, T_world_out;
+  std::string reason;
+  if (!resolve_view(query.render, map, &view, &T_world_camera, &reason)) {
+    return core::fail(why, "segment: " + reason);
+  }
+  if (query.has_output_view) {
+    if (!resolve_view(query.output_view, map, &out_view, &T_world_out, &reason)) {
+      return core::fail(why, "segment: output view: " + reason);
+    }
+  } else {
+    out_view = view;
+    T_world_out = T_world_camera;
+  }
+  std::vector<Eigen::Vector2d> points;
+  std::vector<core::BoxPrompt> boxes;
+  if (!check_prompts(mode, query.points, query.boxes, view.camera, &points, &boxes, why)) return false;
+
+  const core::Rasterizer& rasterizer = *query_rasterizer_;
+  constexpr float kMinAlpha = 0.5f;  // pixels less opaque than this show background, not an object
+  std::uint64_t version_number = map.versions().version_number();
+  core::MapVersions::Version version = map.versions().latest();
+  cv::Mat labels_image;  // CV_16UC1 ids + 1, or CV_8UC1 mask
+  if (mode == fslam_proto_SEGMENT_PROMPTLESS) {
+    std::shared_ptr<const core::GaussianLabels> labels;
+    {
+      // Labels are computed once per map version, always for the newest, and carried from the
+      // clustering before so that an object keeps its id while the map grows.
+      std::lock_guard<std::mutex> lock(map.instances_mutex);
+      InstanceLabels& cache = map.instances;
+      version_number = map.versions().version_number();
+      version = map.versions().latest();
+      if (cache.map != version) {
+        if (!has_features(*version)) {
+          return core::fail(why, "segment: the map carries no features; stream with features on");
+        }
+        const core::PromptlessConfig config;
+        auto fresh = std::make_shared<core::GaussianLabels>();
+        if (!core::cluster_instances(*version, config, fresh.get(), why)) return false;
+        if (cache.map) {
+          core::carry_instance_ids(*cache.map, *cache.labels, *version,
+                                   config.graph.max_neighbour_distance, fresh.get());
+        }
+        cache = {version_number, version, std::move(fresh)};
+      }
+      version_number = cache.version_number;
+      labels = cache.labels;
+    }
+    cv::Mat ids;  // CV_32SC1, -1 = none
+    if (!core::render_labels(rasterizer, *version, *labels, out_view, kMinAlpha, &ids, why)) return false;
+    // On the wire: id + 1 in 16 bits, 0 = none; ids beyond 16 bits saturate (never seen in practice).
+    ids.convertTo(labels_image, CV_16UC1, 1.0, 1.0);
+  } else {
+    if (!has_features(*version)) {
+      return core::fail(why, "segment: the map carries no features; stream with features on");
+    }
+    const core::PromptConfig config;
+    std::vector<std::uint8_t> selected;
+    if (mode == fslam_proto_SEGMENT_POINTS) {
+      if (!core::select_by_points(rasterizer, *version, view, points, config, &selected, why)) return false;
+    } else {
+      if (mode == fslam_proto_SEGMENT_TEXT) {
+        // The detector looks at the prompt view as the map renders it; its boxes become prompts.
+        core::RenderSettings settings;
+        settings.features = false;
+        core::RenderResult rendered;
+        if (!rasterizer.forward(*version, view, settings, &rendered, why)) return false;
+        std::vector<GroundedBox> found;
+        if (!grounding_->detect(colour_to_rgb8(rendered.colour), query.text, &found, &reason)) {
+          return core::fail(why, "segment: " + reason);
+        }
+        if (found.empty()) {
+          return core::fail(why, "segment: the grounding detector found nothing for '" + query.text +
+                                     "' (no box scored " + number(config_.grounding_box_threshold) +
+                                     " or more)");
+        }
+        for (const GroundedBox& g : found) boxes.push_back({g.u0, g.v0, g.u1, g.v1});
+      }
+      // Several boxes: the union of their objects.
+      selected.assign(version->size(), 0);
+      for (const core::BoxPrompt& box : boxes) {
+        std::vector<std::uint8_t> one;
+        if (!core::select_by_box(rasterizer, *version, view, box, config, &one, why)) return false;
+        for (std::size_t i = 0; i < one.size(); ++i) selected[i] |= one[i];
+      }
+    }
+    if (!core::render_selection(rasterizer, *version, selected, out_view, kMinAlpha, &labels_image, why)) {
+      return false;
+    }
+  }
+  core::RenderSettings settings;
+  settings.features = false;
+  core::RenderResult rendered;
+  if (!rasterizer.forward(*version, out_view, settings, &rendered, why)) return false;
+  if (!attach_images({labels_image, colour_to_rgb8(rendered.colour)}, result, buffers, images)) {
+    return core::fail(why, "segment: cannot encode a result image");
+  }
+  describe_view(out_view, T_world_out, result);
   result->map_version = version_number;
   result->map_gaussians = version->size();
   return true;

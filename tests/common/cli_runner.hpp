@@ -1,13 +1,17 @@
-// Runs the real `fslam` binary from integration tests.
+// Runs the real `fslam` and `fslam-server` binaries from integration tests.
 #pragma once
 
+#include <signal.h>
+#include <sys/types.h>
 #include <sys/wait.h>
 
 #include <atomic>
+#include <chrono>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
 
 #include "test_support.hpp"
 
@@ -29,5 +33,23 @@ inline int run_command(const std::string& command, std::string* out, std::string
 }
 
 inline std::string fslam_bin() { return (bin_dir() / "fslam").string(); }
+
+// Starts fslam-server in the background with `args`, output to `log`; returns its pid (or -1).
+inline pid_t start_server(const std::string& args, const std::string& log) {
+  const std::string server = (bin_dir() / "fslam-server").string();
+  const std::string pid_file = log + ".pid";
+  std::system((server + " " + args + " >" + log + " 2>&1 & echo $! >" + pid_file).c_str());
+  pid_t pid = -1;
+  std::ifstream(pid_file) >> pid;
+  return pid;
+}
+
+// SIGTERM and wait for the process to exit (a server saves its maps on the way out).
+inline void stop_process(pid_t pid) {
+  if (pid <= 0) return;
+  kill(pid, SIGTERM);
+  for (int i = 0; i < 600 && kill(pid, 0) == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+}
 
 }  // namespace fslam::test

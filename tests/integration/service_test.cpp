@@ -24,28 +24,12 @@ namespace {
 
 using test::fslam_bin;
 using test::run_command;
+using test::start_server;
+using test::stop_process;
 
 double ate_from(const std::string& out) {
   const auto at = out.find("ATE RMSE ");
   return at == std::string::npos ? -1.0 : std::stod(out.substr(at + 9));
-}
-
-// Starts fslam-server in the background with `args`; returns its pid (or -1).
-pid_t start_server(const std::string& args, const std::string& log) {
-  const std::string server = (test::bin_dir() / "fslam-server").string();
-  const std::string pid_file = log + ".pid";
-  std::system((server + " " + args + " >" + log + " 2>&1 & echo $! >" + pid_file).c_str());
-  pid_t pid = -1;
-  std::ifstream(pid_file) >> pid;
-  return pid;
-}
-
-// SIGTERM and wait for the process to exit (a server saves its maps on the way out).
-void stop_process(pid_t pid) {
-  if (pid <= 0) return;
-  kill(pid, SIGTERM);
-  for (int i = 0; i < 600 && kill(pid, 0) == 0; ++i)
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
 }
 
 client::ClientOptions options_for(const std::string& prefix) {

@@ -81,13 +81,17 @@ struct StatusUpdate {
 // Channels of a render (the proto's CHANNEL_* bits).
 enum RenderChannel : std::uint32_t { kColour = 1, kDepth = 2, kNormals = 4, kOpacity = 8 };
 
-struct RenderQuery {
-  std::string map_name;
+// Where a query looks at a map from: a pose, or the tracked pose of a frame; and a camera.
+struct CameraView {
   double translation[3] = {0, 0, 0};  // camera-to-world, metres
   double rotation[4] = {0, 0, 0, 1};  // qx qy qz qw
-  bool from_frame = false;            // render from the tracked pose of frame_id instead
+  bool from_frame = false;            // use the tracked pose of frame_id instead
   std::uint64_t frame_id = 0;
   CameraIntrinsics intrinsics;        // width 0: the camera the map was built with
+};
+
+struct RenderQuery : CameraView {
+  std::string map_name;
   std::uint32_t channels = kColour | kDepth | kNormals | kOpacity;
   float depth_scale = 1000.0f;        // depth image units per metre
 };
@@ -103,6 +107,29 @@ struct RenderedImage {
 
 struct RenderOutput {
   std::vector<RenderedImage> images;  // in channel bit order
+  double translation[3] = {0, 0, 0}, rotation[4] = {0, 0, 0, 1};  // the pose rendered from
+  CameraIntrinsics intrinsics;                                     // and the camera
+  std::uint64_t map_version = 0, map_gaussians = 0;
+};
+
+// Segmentation queries (docs/segmentation.md).
+enum class SegmentMode { promptless, points, boxes, text };
+
+struct SegmentQuery {
+  std::string map_name;
+  SegmentMode mode = SegmentMode::promptless;
+  std::vector<float> points;  // points: u, v pairs in pixels of `view`
+  std::vector<float> boxes;   // boxes: u0, v0, u1, v1 quadruples in pixels of `view`
+  std::string text;           // text: what to find (the server needs a grounding model)
+  CameraView view;            // the view prompts are given in, and the result's unless...
+  bool has_output_view = false;
+  CameraView output_view;     // ...this one is given: render the labels from here instead
+};
+
+struct SegmentOutput {
+  // promptless: 16-bit instance ids + 1 (0 = none); prompts: 8-bit mask, 255 = the object.
+  RenderedImage labels;
+  RenderedImage colour;  // RGB render of the same view
   double translation[3] = {0, 0, 0}, rotation[4] = {0, 0, 0, 1};  // the pose rendered from
   CameraIntrinsics intrinsics;                                     // and the camera
   std::uint64_t map_version = 0, map_gaussians = 0;
@@ -134,6 +161,9 @@ class Client {
   bool attach_map(const std::string& map_name, int timeout_ms, std::string* why);
   // Renders a map from a pose and waits up to timeout_ms for the images.
   bool render(const RenderQuery& query, RenderOutput* output, int timeout_ms, std::string* why);
+  // Segments a map (promptless, or by point, box or text prompts) and waits up to timeout_ms for
+  // the labels and the colour render.
+  bool segment(const SegmentQuery& query, SegmentOutput* output, int timeout_ms, std::string* why);
   // Saves a map on the server, under its map_dir (`folder` empty: the map's name); `saved_to`
   // gets the server-side folder.
   bool save_map(const std::string& map_name, const std::string& folder, int timeout_ms,

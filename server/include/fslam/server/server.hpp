@@ -2,8 +2,9 @@
 // deactivate -> cleanup) that owns maps and the SLAM sessions streaming into them, and talks DDS
 // (docs/protocol.md). Each session runs tracking and mapping on their own threads, fed by a
 // bounded frame queue; a full queue drops the newest frame and says so in an error result —
-// nothing accepted is lost silently. Render, save and load requests run on query threads against
-// the newest map version, so any number of clients can query any map while it is being built.
+// nothing accepted is lost silently. Render, segment, save and load requests run on query threads
+// against the newest map version, so any number of clients can query any map while it is being
+// built.
 #pragma once
 
 #include <atomic>
@@ -21,6 +22,7 @@
 #include "fslam/client/dds.hpp"
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "fslam/proto/types.h"
+#include "fslam/server/grounding.hpp"
 
 namespace fslam::server {
 
@@ -40,13 +42,21 @@ struct ServerConfig {
   std::string map_dir;
   bool load_maps_at_start = true;               // serve every map saved under map_dir
   bool save_maps_at_shutdown = true;            // save every map changed since its last save
-  int query_threads = 1;                        // render / save / load requests in parallel
+  int query_threads = 1;                        // render / segment / save / load requests in parallel
   std::size_t query_queue_capacity = 16;        // requests waiting; more are refused as busy
   std::uint32_t max_render_pixels = 4096 * 4096;
+  // Text segmentation queries: a grounding detector (grounding.hpp, docs/segmentation.md).
+  // Empty: text queries get an error result saying to set it.
+  std::string grounding_model;
+  int grounding_input_size = 800;               // pixels, square
+  float grounding_box_threshold = 0.35f;        // boxes scoring lower are dropped
   // Real-time mapping by default: a live stream must not build a backlog of keyframes that
   // makes closing a session wait for it (core's default suits offline `fslam run`).
   core::PipelineConfig pipeline = realtime_pipeline();
   bool is_valid(std::string* why = nullptr) const;
+  GroundingConfig grounding() const {
+    return {grounding_model, grounding_input_size, grounding_box_threshold};
+  }
 };
 
 struct ServerStats {
@@ -82,10 +92,17 @@ class Server {
   void handle_frame(const fslam_proto_Frame& msg);
   void accept_request(const fslam_proto_Request& msg);
   void answer(const Query& query);
-  // Fills `result`, whose images point into `buffers` and `images`.
+  // Fill `result`, whose images point into `buffers` and `images`.
   bool render(const Query& query, MapEntry& map, fslam_proto_Result* result,
               std::vector<std::vector<std::uint8_t>>* buffers,
               std::vector<fslam_proto_Image>* images, std::string* why);
+  bool segment(const Query& query, MapEntry& map, fslam_proto_Result* result,
+               std::vector<std::vector<std::uint8_t>>* buffers,
+               std::vector<fslam_proto_Image>* images, std::string* why);
+  // The camera and pose a RenderRequest names (pose or tracked frame, intrinsics or the map's
+  // camera), checked against the server's limits.
+  bool resolve_view(const fslam_proto_RenderRequest& request, MapEntry& map, core::RenderView* view,
+                    Eigen::Isometry3d* T_world_camera, std::string* why) const;
   bool save(MapEntry& map, const std::string& folder, std::string* why);
   bool load(const std::string& name, const std::string& folder, std::string* why);
   std::shared_ptr<MapEntry> find_map(const std::string& name) const;
@@ -106,6 +123,7 @@ class Server {
   std::vector<std::thread> query_threads_;
   std::atomic<bool> stop_{false};
   std::shared_ptr<const core::Rasterizer> query_rasterizer_;
+  std::unique_ptr<GroundingDetector> grounding_;  // null without server.grounding_model
 
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, std::shared_ptr<MapEntry>> maps_;
