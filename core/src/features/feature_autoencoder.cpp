@@ -410,6 +410,30 @@ double FeatureAutoencoder::feature_loss(const float* f, const float* u_obs, int 
   return loss;
 }
 
+void FeatureAutoencoder::standardise_latent(const float* u, int n) {
+  const int D = latent_dim(), He = config_.encoder_hidden, Hd = config_.head_hidden;
+  if (n <= 0) return;
+  std::vector<float> f(sz(n, D));
+  encode(u, n, f.data());
+  const auto F = in(f.data(), n, D);
+  const Eigen::RowVectorXf mu = F.colwise().mean();
+  const Eigen::RowVectorXf sigma =
+      ((F.rowwise() - mu).array().square().colwise().mean().sqrt()).max(1e-3f).matrix();
+  // f = mu + sigma f': the encoder's last layer outputs f', and every head's first layer,
+  // f W0^T + b0, becomes f' (W0 diag(sigma))^T + (b0 + W0 mu).
+  auto w1 = out(tensor_data(enc1_.w), D, He);
+  auto b1 = out(tensor_data(enc1_.b), 1, D);
+  w1.array().colwise() /= sigma.transpose().array();
+  b1.array() = (b1.array() - mu.array()) / sigma.array();
+  for (const Linear& l0 : head0_) {
+    assert(in(tensor_data(l0.lora_b), Hd, config_.lora_rank).isZero(0.0f));
+    auto w0 = out(tensor_data(l0.w), Hd, D);
+    auto b0 = out(tensor_data(l0.b), 1, Hd);
+    b0 += mu * w0.transpose();
+    w0.array().rowwise() *= sigma.array();
+  }
+}
+
 // ---- Optimisation -------------------------------------------------------------------------------
 
 void FeatureAutoencoder::zero_grad() { std::fill(grads_.begin(), grads_.end(), 0.0f); }
@@ -772,6 +796,7 @@ bool pretrain_autoencoder_on_samples(const std::vector<float>& samples,
       running_count = 0;
     }
   }
+  ae->standardise_latent(eval.data(), static_cast<int>(eval.size() / Cs));
   ae->set_mode(AutoencoderMode::online);
   s.steps = options.steps;
   s.train_error_after = reconstruction_error(*ae, eval);

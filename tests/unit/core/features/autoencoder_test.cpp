@@ -354,6 +354,27 @@ TEST(FeatureAutoencoder, FeatureLossIsDecodeL1AndBackwardInChunks) {
     ASSERT_NEAR(ae.tensor_grad(0)[ae.body_size() + i], lora_grad[i], 1e-6 + 1e-4 * std::abs(lora_grad[i])) << i;
 }
 
+TEST(FeatureAutoencoder, StandardisingTheLatentKeepsTheReconstruction) {
+  FeatureAutoencoder ae;
+  set_test_normalisation(&ae);
+  const Probe p = make_probe(ae, 200);
+  const int D = ae.latent_dim();
+  std::vector<float> f(static_cast<std::size_t>(p.n) * D), before(p.u.size()), after(p.u.size());
+  ae.encode(p.u.data(), p.n, f.data());
+  ae.decode(f.data(), p.n, before.data());
+  ae.standardise_latent(p.u.data(), p.n);
+  ae.encode(p.u.data(), p.n, f.data());
+  ae.decode(f.data(), p.n, after.data());
+  for (std::size_t i = 0; i < before.size(); ++i)
+    ASSERT_NEAR(after[i], before[i], 1e-4 * (1.0 + std::abs(before[i]))) << i;
+  for (int d = 0; d < D; ++d) {
+    double mean = 0, square = 0;
+    for (int i = 0; i < p.n; ++i) mean += f[i * D + d] / p.n, square += f[i * D + d] * f[i * D + d] / p.n;
+    EXPECT_NEAR(mean, 0.0, 1e-4) << d;
+    EXPECT_NEAR(std::sqrt(square - mean * mean), 1.0, 1e-3) << d;
+  }
+}
+
 // Decodes with every LoRA tensor zeroed: the plain pretrained decoder.
 std::vector<float> decode_without_lora(FeatureAutoencoder ae, const std::vector<float>& f, int n) {
   for (int t = 0; t < static_cast<int>(ae.tensors().size()); ++t)
@@ -624,6 +645,14 @@ TEST(FeatureAutoencoder, PretrainingLearnsToReconstructUnseenImages) {
   const double held_out_after = reconstruction_error(ae, held_out);
   std::printf("[ reconstruction ] train %.3f -> %.3f, held-out room %.3f -> %.3f\n",
               stats.train_error_before, stats.train_error_after, held_out_before, held_out_after);
+  // The latent comes out standardised (over the training samples; the held-out room's are
+  // near it).
+  std::vector<float> f(held_out.size() / ae.input_dim() * ae.latent_dim());
+  ae.encode(held_out.data(), static_cast<int>(f.size() / ae.latent_dim()), f.data());
+  double mean = 0, square = 0;
+  for (float x : f) mean += x / f.size(), square += static_cast<double>(x) * x / f.size();
+  EXPECT_LT(std::abs(mean), 0.5);
+  EXPECT_NEAR(std::sqrt(square), 1.0, 0.5);
   EXPECT_GT(stats.train_error_before, 0.5);
   EXPECT_LT(stats.train_error_after, 0.4 * stats.train_error_before);
   EXPECT_LT(held_out_after, 0.6 * held_out_before);
