@@ -27,6 +27,7 @@ void add_run_command(CLI::App& root, CommandList* commands);
 void add_render_command(CLI::App& root, CommandList* commands);
 void add_stream_command(CLI::App& root, CommandList* commands);
 void add_serve_command(CLI::App& root, CommandList* commands);
+void add_train_autoencoder_command(CLI::App& root, CommandList* commands);
 
 // The q-quantile (0..1) of `values` by linear interpolation between order statistics (numpy's
 // default); 0 for an empty vector.

@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   fslam::cli::add_render_command(app, &commands);
   fslam::cli::add_stream_command(app, &commands);
   fslam::cli::add_serve_command(app, &commands);
+  fslam::cli::add_train_autoencoder_command(app, &commands);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
