@@ -40,7 +40,8 @@ struct TrainAutoencoderArgs {
 
 bool is_image(const fs::path& p) {
   std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   return ext == ".png" || ext == ".jpg" || ext == ".jpeg";
 }
 
@@ -54,7 +55,8 @@ void collect_images(const fs::path& path, std::vector<fs::path>* out) {
   }
   if (fs::is_directory(path / "rgb", ec)) return collect_images(path / "rgb", out);
   std::vector<fs::path> entries;
-  for (auto it = fs::directory_iterator(path, ec); !ec && it != fs::directory_iterator(); it.increment(ec))
+  for (auto it = fs::directory_iterator(path, ec); !ec && it != fs::directory_iterator();
+       it.increment(ec))
     entries.push_back(it->path());
   std::sort(entries.begin(), entries.end());
   for (const auto& entry : entries) {
@@ -150,12 +152,12 @@ int run_train_autoencoder(const TrainAutoencoderArgs& args) {
 
   std::string dirs;
   for (const auto& d : args.images) dirs += (dirs.empty() ? "" : ", ") + d;
-  autoencoder.set_notes("fslam " FSLAM_VERSION " train-autoencoder; encoder: " + encoder->describe() +
-                        "; " + std::to_string(train_images) + " training images (" +
-                        std::to_string(args.pretrain.pixels_per_image) + " pixels each) from " +
-                        dirs + "; steps " + std::to_string(args.pretrain.steps) + ", batch " +
-                        std::to_string(args.pretrain.batch) + ", seed " +
-                        std::to_string(args.pretrain.seed));
+  autoencoder.set_notes(
+      "fslam " FSLAM_VERSION " train-autoencoder; encoder: " + encoder->describe() + "; " +
+      std::to_string(train_images) + " training images (" +
+      std::to_string(args.pretrain.pixels_per_image) + " pixels each) from " + dirs + "; steps " +
+      std::to_string(args.pretrain.steps) + ", batch " + std::to_string(args.pretrain.batch) +
+      ", seed " + std::to_string(args.pretrain.seed));
   if (!autoencoder.save(args.out, &why)) return fail(why);
 
   std::printf("reconstruction error (mean |u_hat - u| in channel standard deviations, levels "
