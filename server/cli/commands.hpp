@@ -30,6 +30,7 @@ void add_stream_command(CLI::App& root, CommandList* commands);
 void add_serve_command(CLI::App& root, CommandList* commands);
 void add_map_commands(CLI::App& root, CommandList* commands);  // status, save-map, load-map
 void add_segment_eval_command(CLI::App& root, CommandList* commands);
+void add_train_autoencoder_command(CLI::App& root, CommandList* commands);
 
 // The q-quantile (0..1) of `values` by linear interpolation between order statistics (numpy's
 // default); 0 for an empty vector.

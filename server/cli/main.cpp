@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
   fslam::cli::add_serve_command(app, &commands);
   fslam::cli::add_map_commands(app, &commands);
   fslam::cli::add_segment_eval_command(app, &commands);
+  fslam::cli::add_train_autoencoder_command(app, &commands);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,7 +1,7 @@
 // Feature autoencoder cost per batch on one thread: encode (phi, what insertion pays per new
 // Gaussian), decode (the heads, per rendered pixel), and the mapper's online training step
-// (feature_loss: decode + L1 + backward to dL/df and LoRA, then Adam on LoRA). Median thread CPU time over
-// --repeats runs.
+// (feature_loss: decode + L1 + backward to dL/df and LoRA, then Adam on LoRA). Median thread
+// CPU time over --repeats runs.
 // Usage: fslam_bench_autoencoder [--pixels 2000,19200] [--repeats 50] [--latent 16]
 //        [--encoder-hidden 64] [--head-hidden 32] [--activation gelu|relu]
 #include <algorithm>
@@ -47,14 +47,18 @@ int main(int argc, char** argv) {
   int repeats = 50;
   FeatureAutoencoderConfig config;
   std::string activation = to_string(config.activation);
-  app.add_option("--pixels", pixels, "batch sizes (19200 = a 160x120 training render)")->delimiter(',');
+  app.add_option("--pixels", pixels, "batch sizes (19200 = a 160x120 training render)")
+      ->delimiter(',');
   app.add_option("--repeats", repeats)->capture_default_str();
   app.add_option("--latent", config.latent_dim)->capture_default_str();
   app.add_option("--encoder-hidden", config.encoder_hidden)->capture_default_str();
   app.add_option("--head-hidden", config.head_hidden)->capture_default_str();
-  app.add_option("--activation", activation)->check(CLI::IsMember({"gelu", "relu"}))->capture_default_str();
+  app.add_option("--activation", activation)
+      ->check(CLI::IsMember({"gelu", "relu"}))
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
-  config.activation = activation == "relu" ? AutoencoderActivation::relu : AutoencoderActivation::gelu;
+  config.activation =
+      activation == "relu" ? AutoencoderActivation::relu : AutoencoderActivation::gelu;
   FeatureAutoencoder ae(config);
   const int C = ae.input_dim(), D = ae.latent_dim();
   std::printf("network %d -> %d -> %d, heads %d -> %d -> C_l, %s, LoRA rank %d\n", C,

@@ -33,15 +33,21 @@ constexpr double kPi = 3.14159265358979323846;
 
 // Portable uniform [0, 1) from mt19937's standardised output (std::uniform_real_distribution
 // differs between standard libraries, and the initial weights should not).
-float uniform01(std::mt19937* rng) { return static_cast<float>((*rng)() >> 8) * (1.0f / 16777216.0f); }
+float uniform01(std::mt19937* rng) {
+  return static_cast<float>((*rng)() >> 8) * (1.0f / 16777216.0f);
+}
 
 // GELU, tanh form (Hendrycks & Gimpel 2016): 0.5 x (1 + tanh(k (x + 0.044715 x^3))).
 constexpr float kGeluK = 0.7978845608f;  // sqrt(2 / pi)
 constexpr float kGeluC = 0.044715f;
 
+Eigen::Map<const Eigen::ArrayXf> array(const std::vector<float>& v) {
+  return Eigen::Map<const Eigen::ArrayXf>(v.data(), static_cast<Eigen::Index>(v.size()));
+}
+
 void activate(AutoencoderActivation a, const std::vector<float>& pre, std::vector<float>* act) {
   act->resize(pre.size());
-  const auto x = Eigen::Map<const Eigen::ArrayXf>(pre.data(), static_cast<Eigen::Index>(pre.size()));
+  const auto x = array(pre);
   auto y = Eigen::Map<Eigen::ArrayXf>(act->data(), static_cast<Eigen::Index>(act->size()));
   if (a == AutoencoderActivation::relu) y = x.max(0.0f);
   else y = 0.5f * x * (1.0f + (kGeluK * (x + kGeluC * x.cube())).tanh());
@@ -49,13 +55,14 @@ void activate(AutoencoderActivation a, const std::vector<float>& pre, std::vecto
 
 // grad *= activation'(pre), elementwise.
 void activate_backward(AutoencoderActivation a, const std::vector<float>& pre, float* grad) {
-  const auto x = Eigen::Map<const Eigen::ArrayXf>(pre.data(), static_cast<Eigen::Index>(pre.size()));
+  const auto x = array(pre);
   auto g = Eigen::Map<Eigen::ArrayXf>(grad, static_cast<Eigen::Index>(pre.size()));
   if (a == AutoencoderActivation::relu) {
     g *= (x > 0.0f).cast<float>();
   } else {
     const Eigen::ArrayXf t = (kGeluK * (x + kGeluC * x.cube())).tanh();
-    g *= 0.5f * (1.0f + t) + 0.5f * x * (1.0f - t.square()) * kGeluK * (1.0f + 3.0f * kGeluC * x.square());
+    g *= 0.5f * (1.0f + t) +
+         0.5f * x * (1.0f - t.square()) * kGeluK * (1.0f + 3.0f * kGeluC * x.square());
   }
 }
 
@@ -153,8 +160,10 @@ void FeatureAutoencoder::build_layout() {
   const int Hd = config_.head_hidden, r = config_.lora_rank;
   const int L = static_cast<int>(config_.level_channels.size());
   // Body first so that it is one contiguous Adam group; LoRA after it.
-  enc0_ = {add_tensor("encoder.0.weight", He, C, false), add_tensor("encoder.0.bias", 1, He, false)};
-  enc1_ = {add_tensor("encoder.1.weight", D, He, false), add_tensor("encoder.1.bias", 1, D, false)};
+  enc0_ = {add_tensor("encoder.0.weight", He, C, false),
+           add_tensor("encoder.0.bias", 1, He, false)};
+  enc1_ = {add_tensor("encoder.1.weight", D, He, false),
+           add_tensor("encoder.1.bias", 1, D, false)};
   head0_.resize(static_cast<std::size_t>(L));
   head1_.resize(static_cast<std::size_t>(L));
   for (int l = 0; l < L; ++l) {
@@ -178,7 +187,8 @@ void FeatureAutoencoder::build_layout() {
   grads_.assign(params_.size(), 0.0f);
   level_offset_.assign(static_cast<std::size_t>(L), 0);
   for (int l = 1; l < L; ++l)
-    level_offset_[l] = level_offset_[l - 1] + config_.level_channels[static_cast<std::size_t>(l - 1)];
+    level_offset_[l] =
+        level_offset_[l - 1] + config_.level_channels[static_cast<std::size_t>(l - 1)];
 }
 
 int FeatureAutoencoder::find_tensor(const std::string& name) const {
@@ -287,7 +297,9 @@ void FeatureAutoencoder::backward_decode(const AutoencoderTape& t, const float* 
   assert(t.f.size() == sz(n, D) && t.head_act.size() == L);
   const float s = lora_scale();
   const auto T = [&](int i) { return tensor_data(i); };
-  const auto G = [&](int i) { return grads_.data() + tensors_[static_cast<std::size_t>(i)].offset; };
+  const auto G = [&](int i) {
+    return grads_.data() + tensors_[static_cast<std::size_t>(i)].offset;
+  };
 
   // dL/dx_hat = dL/du_hat * std.
   const Eigen::Map<const Eigen::RowVectorXf> stdev(std_.data(), C);
@@ -338,7 +350,9 @@ void FeatureAutoencoder::backward_encode(const AutoencoderTape& t, const float* 
   const bool train = trainable(enc0_.w);
   if (!train && !grad_u) return;
   const auto T = [&](int i) { return tensor_data(i); };
-  const auto G = [&](int i) { return grads_.data() + tensors_[static_cast<std::size_t>(i)].offset; };
+  const auto G = [&](int i) {
+    return grads_.data() + tensors_[static_cast<std::size_t>(i)].offset;
+  };
   const auto df = in(grad_f, n, D);
   if (train) {
     out(G(enc1_.w), D, He).noalias() += df.transpose() * in(t.enc_act.data(), n, He);
@@ -410,6 +424,30 @@ double FeatureAutoencoder::feature_loss(const float* f, const float* u_obs, int 
   return loss;
 }
 
+void FeatureAutoencoder::standardise_latent(const float* u, int n) {
+  const int D = latent_dim(), He = config_.encoder_hidden, Hd = config_.head_hidden;
+  if (n <= 0) return;
+  std::vector<float> f(sz(n, D));
+  encode(u, n, f.data());
+  const auto F = in(f.data(), n, D);
+  const Eigen::RowVectorXf mu = F.colwise().mean();
+  const Eigen::RowVectorXf sigma =
+      ((F.rowwise() - mu).array().square().colwise().mean().sqrt()).max(1e-3f).matrix();
+  // f = mu + sigma f': the encoder's last layer outputs f', and every head's first layer,
+  // f W0^T + b0, becomes f' (W0 diag(sigma))^T + (b0 + W0 mu).
+  auto w1 = out(tensor_data(enc1_.w), D, He);
+  auto b1 = out(tensor_data(enc1_.b), 1, D);
+  w1.array().colwise() /= sigma.transpose().array();
+  b1.array() = (b1.array() - mu.array()) / sigma.array();
+  for (const Linear& l0 : head0_) {
+    assert(in(tensor_data(l0.lora_b), Hd, config_.lora_rank).isZero(0.0f));
+    auto w0 = out(tensor_data(l0.w), Hd, D);
+    auto b0 = out(tensor_data(l0.b), 1, Hd);
+    b0 += mu * w0.transpose();
+    w0.array().rowwise() *= sigma.array();
+  }
+}
+
 // ---- Optimisation -------------------------------------------------------------------------------
 
 void FeatureAutoencoder::zero_grad() { std::fill(grads_.begin(), grads_.end(), 0.0f); }
@@ -444,7 +482,7 @@ bool FeatureAutoencoder::check_levels(const std::vector<FeatureLevelShape>& enco
                        " but the feature encoder produces " + list(channels));
 }
 
-// ---- Weights file --------------------------------------------------------------------------------
+// ---- Weights file ------------------------------------------------------------------------------
 // Little-endian throughout: magic "FSLAMFAE", u32 version, the config, u32 notes length + bytes,
 // f32 mean[C], f32 std[C], u32 tensor count, then per tensor u32 name length + name, u32 rows,
 // u32 cols, f32 data[rows * cols]. Nothing may follow.
@@ -519,7 +557,8 @@ class Reader {
   }
   bool at_end() {
     if (pos_ == bytes_.size()) return true;
-    return fail_with(std::to_string(bytes_.size() - pos_) + " unexpected bytes after the last tensor");
+    return fail_with(std::to_string(bytes_.size() - pos_) +
+                     " unexpected bytes after the last tensor");
   }
   bool fail_with(const std::string& message) {
     error_ = message;
@@ -530,7 +569,8 @@ class Reader {
  private:
   bool need(std::size_t n, const char* what) {
     if (bytes_.size() - pos_ >= n) return true;
-    return fail_with("truncated at byte " + std::to_string(bytes_.size()) + " while reading " + what);
+    return fail_with("truncated at byte " + std::to_string(bytes_.size()) + " while reading " +
+                     what);
   }
   std::vector<char> bytes_;
   std::size_t pos_ = 0;
@@ -596,7 +636,9 @@ bool FeatureAutoencoder::load(const std::string& path, std::string* why) {
   }
   for (auto& d : dims)
     if (!r.u32(&d, "the layer sizes")) return bad(r.error());
-  const auto to_int = [](std::uint32_t x) { return static_cast<int>(std::min<std::uint32_t>(x, 1u << 30)); };
+  const auto to_int = [](std::uint32_t x) {
+    return static_cast<int>(std::min<std::uint32_t>(x, 1u << 30));
+  };
   config.latent_dim = to_int(dims[0]);
   config.encoder_hidden = to_int(dims[1]);
   config.head_hidden = to_int(dims[2]);
@@ -653,14 +695,15 @@ bool FeatureAutoencoder::load(const std::string& path,
   return true;
 }
 
-// ---- Pretraining ---------------------------------------------------------------------------------
+// ---- Pretraining -------------------------------------------------------------------------------
 
 bool AutoencoderPretrainOptions::is_valid(std::string* why) const {
   if (steps < 1) return fail(why, "autoencoder pretraining: steps must be >= 1");
   if (batch < 1) return fail(why, "autoencoder pretraining: batch must be >= 1");
   if (!(std::isfinite(learning_rate) && learning_rate > 0.0f))
     return fail(why, "autoencoder pretraining: learning rate must be positive");
-  if (pixels_per_image < 1) return fail(why, "autoencoder pretraining: pixels_per_image must be >= 1");
+  if (pixels_per_image < 1)
+    return fail(why, "autoencoder pretraining: pixels_per_image must be >= 1");
   if (eval_samples < 1) return fail(why, "autoencoder pretraining: eval_samples must be >= 1");
   return true;
 }
@@ -707,7 +750,8 @@ bool pretrain_autoencoder_on_samples(const std::vector<float>& samples,
     return fail(why, "autoencoder pretraining: samples must be a non-empty [M, " +
                          std::to_string(C) + "] array");
   if (held_out && held_out->size() % Cs != 0)
-    return fail(why, "autoencoder pretraining: held-out samples must be [K, " + std::to_string(C) + "]");
+    return fail(why, "autoencoder pretraining: held-out samples must be [K, " +
+                         std::to_string(C) + "]");
   const std::size_t m = samples.size() / Cs;
 
   // Per-channel standardisation from the training samples. A near-constant channel's std is
@@ -722,7 +766,8 @@ bool pretrain_autoencoder_on_samples(const std::vector<float>& samples,
   std::vector<float> mean(Cs), stdev(Cs);
   for (std::size_t c = 0; c < Cs; ++c) {
     mean[c] = static_cast<float>(sum[c] / m);
-    stdev[c] = static_cast<float>(std::sqrt(std::max(0.0, sq[c] / m - (sum[c] / m) * (sum[c] / m))));
+    const double mu = sum[c] / m;
+    stdev[c] = static_cast<float>(std::sqrt(std::max(0.0, sq[c] / m - mu * mu)));
   }
   std::vector<float> sorted = stdev;
   std::nth_element(sorted.begin(), sorted.begin() + Cs / 2, sorted.end());
@@ -763,8 +808,8 @@ bool pretrain_autoencoder_on_samples(const std::vector<float>& samples,
     ae->backward_decode(tape, grad.data(), grad_f.data());
     ae->backward_encode(tape, grad_f.data(), nullptr);
     // Cosine decay from learning_rate to learning_rate / 10.
-    const double progress_fraction = options.steps > 1 ? static_cast<double>(t) / (options.steps - 1) : 1.0;
-    const double lr = options.learning_rate * (0.1 + 0.9 * 0.5 * (1.0 + std::cos(kPi * progress_fraction)));
+    const double done = options.steps > 1 ? static_cast<double>(t) / (options.steps - 1) : 1.0;
+    const double lr = options.learning_rate * (0.1 + 0.45 * (1.0 + std::cos(kPi * done)));
     ae->step(static_cast<float>(lr));
     if (progress && ((t + 1) % report_every == 0 || t + 1 == options.steps)) {
       progress(t + 1, options.steps, running / running_count);
@@ -772,6 +817,7 @@ bool pretrain_autoencoder_on_samples(const std::vector<float>& samples,
       running_count = 0;
     }
   }
+  ae->standardise_latent(eval.data(), static_cast<int>(eval.size() / Cs));
   ae->set_mode(AutoencoderMode::online);
   s.steps = options.steps;
   s.train_error_after = reconstruction_error(*ae, eval);

@@ -4,7 +4,8 @@
 //
 // Gradient tolerance: the network runs in float, so a central difference with step h has a
 // rounding error of about 1e-7 |L| / h; with h = 1e-2 and |L| ~ 1 that is ~1e-5, and the
-// truncation error (GELU is smooth) ~h^2 = 1e-4. We accept |fd - analytic| <= 2e-3 + 2e-2 |analytic|.
+// truncation error (GELU is smooth) ~h^2 = 1e-4. We accept
+// |fd - analytic| <= 2e-3 + 2e-2 |analytic|.
 #include "fslam/core/features/feature_autoencoder.hpp"
 
 #include <gtest/gtest.h>
@@ -38,7 +39,8 @@ std::vector<float> random_vector(std::size_t n, std::uint32_t seed, float scale 
 }
 
 // Levels of 6, 4 and 3 channels: small enough to check every parameter.
-FeatureAutoencoderConfig small_config(AutoencoderActivation activation = AutoencoderActivation::gelu) {
+FeatureAutoencoderConfig small_config(
+    AutoencoderActivation activation = AutoencoderActivation::gelu) {
   FeatureAutoencoderConfig c;
   c.level_channels = {6, 4, 3};
   c.latent_dim = 3;
@@ -141,7 +143,8 @@ int check_parameter_gradients(FeatureAutoencoder* ae, const Probe& p, int per_te
         EXPECT_EQ(ae->tensor_grad(t)[i], 0.0f) << tensor.name << " is frozen in this mode";
       continue;
     }
-    const std::size_t count = per_tensor > 0 ? std::min<std::size_t>(per_tensor, tensor.size()) : tensor.size();
+    const std::size_t count =
+        per_tensor > 0 ? std::min<std::size_t>(per_tensor, tensor.size()) : tensor.size();
     for (std::size_t k = 0; k < count; ++k) {
       const std::size_t i = per_tensor > 0 ? rng() % tensor.size() : k;
       float* x = ae->tensor_data(t) + i;
@@ -304,7 +307,8 @@ TEST(FeatureAutoencoder, LossL1WeighsLevelsEquallyAndMatchesFiniteDifferences) {
   for (int i = 0; i < n; ++i)
     for (int l = 0, c0 = 0; l < 3; c0 += channels[l], ++l)
       for (int c = c0; c < c0 + channels[l]; ++c)
-        expected += std::abs(a[i * C + c] - b[i * C + c]) / ae.input_std()[c] / (n * 3.0 * channels[l]);
+        expected += std::abs(a[i * C + c] - b[i * C + c]) / ae.input_std()[c] /
+                    (n * 3.0 * channels[l]);
   EXPECT_NEAR(loss, expected, 1e-6 * expected);
   // A unit error on every channel of one level costs 1/3 whatever the level's width.
   std::vector<float> shifted = b;
@@ -351,7 +355,33 @@ TEST(FeatureAutoencoder, FeatureLossIsDecodeL1AndBackwardInChunks) {
   for (std::size_t i = 0; i < f.size(); ++i)
     ASSERT_NEAR(chunked_f[i], grad_f[i], 1e-6 + 1e-4 * std::abs(grad_f[i])) << i;
   for (std::size_t i = 0; i < lora_grad.size(); ++i)
-    ASSERT_NEAR(ae.tensor_grad(0)[ae.body_size() + i], lora_grad[i], 1e-6 + 1e-4 * std::abs(lora_grad[i])) << i;
+    ASSERT_NEAR(ae.tensor_grad(0)[ae.body_size() + i], lora_grad[i],
+                1e-6 + 1e-4 * std::abs(lora_grad[i]))
+        << i;
+}
+
+TEST(FeatureAutoencoder, StandardisingTheLatentKeepsTheReconstruction) {
+  FeatureAutoencoder ae;
+  set_test_normalisation(&ae);
+  const Probe p = make_probe(ae, 200);
+  const int D = ae.latent_dim();
+  std::vector<float> f(static_cast<std::size_t>(p.n) * D), before(p.u.size()), after(p.u.size());
+  ae.encode(p.u.data(), p.n, f.data());
+  ae.decode(f.data(), p.n, before.data());
+  ae.standardise_latent(p.u.data(), p.n);
+  ae.encode(p.u.data(), p.n, f.data());
+  ae.decode(f.data(), p.n, after.data());
+  for (std::size_t i = 0; i < before.size(); ++i)
+    ASSERT_NEAR(after[i], before[i], 1e-4 * (1.0 + std::abs(before[i]))) << i;
+  for (int d = 0; d < D; ++d) {
+    double mean = 0, square = 0;
+    for (int i = 0; i < p.n; ++i) {
+      mean += f[i * D + d] / p.n;
+      square += f[i * D + d] * f[i * D + d] / p.n;
+    }
+    EXPECT_NEAR(mean, 0.0, 1e-4) << d;
+    EXPECT_NEAR(std::sqrt(square - mean * mean), 1.0, 1e-3) << d;
+  }
 }
 
 // Decodes with every LoRA tensor zeroed: the plain pretrained decoder.
@@ -592,7 +622,8 @@ TEST(FeatureAutoencoder, PretrainingLearnsToReconstructUnseenImages) {
     for (auto& p : synthetic_pyramids(seed, 2)) train.push_back(std::move(p));
   std::vector<float> held_out;
   std::mt19937 rng(9);
-  for (const auto& p : synthetic_pyramids(201, 2)) sample_training_features(p, 2000, &rng, &held_out);
+  for (const auto& p : synthetic_pyramids(201, 2))
+    sample_training_features(p, 2000, &rng, &held_out);
 
   FeatureAutoencoder ae;  // the default 352 -> 64 -> 16 network
   AutoencoderPretrainOptions options;
@@ -624,6 +655,14 @@ TEST(FeatureAutoencoder, PretrainingLearnsToReconstructUnseenImages) {
   const double held_out_after = reconstruction_error(ae, held_out);
   std::printf("[ reconstruction ] train %.3f -> %.3f, held-out room %.3f -> %.3f\n",
               stats.train_error_before, stats.train_error_after, held_out_before, held_out_after);
+  // The latent comes out standardised (over the training samples; the held-out room's are
+  // near it).
+  std::vector<float> f(held_out.size() / ae.input_dim() * ae.latent_dim());
+  ae.encode(held_out.data(), static_cast<int>(f.size() / ae.latent_dim()), f.data());
+  double mean = 0, square = 0;
+  for (float x : f) mean += x / f.size(), square += static_cast<double>(x) * x / f.size();
+  EXPECT_LT(std::abs(mean), 0.5);
+  EXPECT_NEAR(std::sqrt(square), 1.0, 0.5);
   EXPECT_GT(stats.train_error_before, 0.5);
   EXPECT_LT(stats.train_error_after, 0.4 * stats.train_error_before);
   EXPECT_LT(held_out_after, 0.6 * held_out_before);

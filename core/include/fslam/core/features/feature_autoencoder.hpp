@@ -131,6 +131,12 @@ class FeatureAutoencoder {
   const std::vector<float>& input_mean() const { return mean_; }
   const std::vector<float>& input_std() const { return std_; }
 
+  // Reparametrises encoder and heads so that encode(u) has zero mean and unit standard
+  // deviation per latent dimension over samples u [N, C]; decode(encode(u)) is unchanged up to
+  // rounding. A pixel the renderer blends with empty space (latent 0) then decodes to the mean
+  // feature, and latent learning rates are in standard deviations. LoRA must still be zero (B).
+  void standardise_latent(const float* u, int n);
+
   // Self-describing little-endian file (docs/features_autoencoder.md): magic, version, config,
   // normalisation, every tensor by name and shape. `notes` records provenance (free text).
   bool save(const std::string& path, std::string* why) const;
@@ -216,9 +222,10 @@ void sample_training_features(const FeaturePyramid& pyramid, int count, std::mt1
                               std::vector<float>* out);
 
 // Pretrains on samples [M, C] (row-major): sets the normalisation from them (a channel's std is
-// floored at 1e-2 x the median channel std), then options.steps Adam steps of the body on
-// loss_l1 of decode(encode(u)) in pretrain mode; leaves *ae in online mode. held_out
-// (optional, [K, C]) is only evaluated. False + why for mismatched sizes or options.
+// floored at 1e-2 x the median channel std), runs options.steps Adam steps of the body on
+// loss_l1 of decode(encode(u)) in pretrain mode, then standardises the latent over the
+// evaluation subset; leaves *ae in online mode. held_out (optional, [K, C]) is only evaluated.
+// False + why for mismatched sizes or options.
 bool pretrain_autoencoder_on_samples(const std::vector<float>& samples,
                                      const std::vector<float>* held_out,
                                      const AutoencoderPretrainOptions& options,
