@@ -5,6 +5,8 @@
 #include <deque>
 #include <map>
 #include <numeric>
+#include <queue>
+#include <tuple>
 
 #include <flann/flann.hpp>
 
@@ -149,22 +151,39 @@ GaussianMap geometry_copy(const GaussianMap& map, int channels) {
   return g;
 }
 
-// Grows the region of Gaussians alike the prompt latent `zp` from `seeds` over the feature graph.
+// Grows the object from `seeds` over the spatial neighbour graph, best match first: a Gaussian
+// joins while its latent is within `threshold` of the object's running mean latent, which
+// starts at the prompt's `zp`. Comparing with the mean rather than with the neighbour keeps the
+// region from creeping across a boundary through the blended latents there.
 void grow(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
           const std::vector<int>& seeds, const float* zp, float threshold,
           std::vector<std::uint8_t>* selected) {
-  std::deque<int> queue(seeds.begin(), seeds.end());
-  for (int s : seeds) (*selected)[static_cast<std::size_t>(s)] = 1;
+  const int dim = space.dim();
+  std::vector<double> sum(zp, zp + dim);
+  double count = 1.0;  // the prompt counts as one member
+  std::vector<float> mean(zp, zp + dim);
+  using Entry = std::pair<float, int>;  // (distance to the mean when queued, Gaussian)
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> queue;
+  std::vector<std::uint8_t> queued(selected->size(), 0);
+  for (int s : seeds) {
+    queue.push({space.distance(space.z(s), mean.data()), s});
+    queued[static_cast<std::size_t>(s)] = 1;
+  }
   while (!queue.empty()) {
-    const int i = queue.front();
-    queue.pop_front();
+    const int i = queue.top().second;
+    queue.pop();
+    const float* zi = space.z(i);
+    if (space.distance(zi, mean.data()) >= threshold) continue;
+    (*selected)[static_cast<std::size_t>(i)] = 1;
+    count += 1.0;
+    for (int c = 0; c < dim; ++c) {
+      sum[c] += zi[c];
+      mean[c] = static_cast<float>(sum[c] / count);
+    }
     for (int j : neighbours[static_cast<std::size_t>(i)]) {
-      if ((*selected)[static_cast<std::size_t>(j)] || !space.alike(i, j) ||
-          space.distance(space.z(j), zp) >= threshold) {
-        continue;
-      }
-      (*selected)[static_cast<std::size_t>(j)] = 1;
-      queue.push_back(j);
+      if (queued[static_cast<std::size_t>(j)]) continue;
+      queued[static_cast<std::size_t>(j)] = 1;
+      queue.push({space.distance(space.z(j), mean.data()), j});
     }
   }
 }
@@ -235,10 +254,37 @@ bool cluster_instances(const GaussianMap& map, const PromptlessConfig& config, G
   if (!config.is_valid(why) || !check_features(map, why)) return false;
   const FeatureSpace space(map, config.graph);
   const std::vector<std::vector<int>> neighbours = space.neighbours();
-  UnionFind sets(map.size());
+  // Neighbour pairs joined in order of latent difference, and only while the two regions'
+  // mean latents stay alike: a region cannot creep across an object boundary through the
+  // blended latents there (single linkage would chain through them).
+  std::vector<std::tuple<float, int, int>> edges;
   for (int i : space.active())
-    for (int j : neighbours[static_cast<std::size_t>(i)])
-      if (space.alike(i, j)) sets.join(i, j);
+    for (int j : neighbours[static_cast<std::size_t>(i)]) {
+      if (j <= i) continue;
+      const float d = space.distance(space.z(i), space.z(j));
+      if (d < config.graph.feature_threshold) edges.emplace_back(d, i, j);
+    }
+  std::sort(edges.begin(), edges.end());
+  const int dim = space.dim();
+  std::vector<float> sum(map.size() * static_cast<std::size_t>(dim));  // per root: sum of z
+  std::vector<float> count(map.size(), 1.0f);
+  for (int i : space.active()) std::copy(space.z(i), space.z(i) + dim, &sum[static_cast<std::size_t>(i) * dim]);
+  std::vector<float> mean_a(static_cast<std::size_t>(dim)), mean_b(static_cast<std::size_t>(dim));
+  UnionFind sets(map.size());
+  for (const auto& [d, i, j] : edges) {
+    const int a = sets.find(i), b = sets.find(j);
+    if (a == b) continue;
+    float* sa = &sum[static_cast<std::size_t>(a) * dim];
+    float* sb = &sum[static_cast<std::size_t>(b) * dim];
+    for (int c = 0; c < dim; ++c) {
+      mean_a[c] = sa[c] / count[a];
+      mean_b[c] = sb[c] / count[b];
+    }
+    if (space.distance(mean_a.data(), mean_b.data()) >= config.graph.feature_threshold) continue;
+    sets.parent[a] = b;
+    for (int c = 0; c < dim; ++c) sb[c] += sa[c];
+    count[b] += count[a];
+  }
   // Small regions (texture speckle, boundary Gaussians) join their most alike neighbour region.
   for (int round = 0; round < 8; ++round) {
     std::map<int, std::size_t> size;

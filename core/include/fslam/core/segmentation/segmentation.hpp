@@ -58,7 +58,14 @@ bool render_labels(const Rasterizer& rasterizer, const GaussianMap& map, const G
                    const RenderView& view, float min_alpha, cv::Mat* ids, std::string* why);
 
 struct PromptConfig {
-  FeatureGraphConfig graph;
+  // A prompt compares each Gaussian with the object's running mean latent, so it can afford a
+  // looser threshold than promptless merging (chosen on the synthetic room, docs/segmentation.md).
+  FeatureGraphConfig graph = loose_graph();
+  static FeatureGraphConfig loose_graph() {
+    FeatureGraphConfig g;
+    g.feature_threshold = 0.8f;
+    return g;
+  }
   float seed_radius = 0.03f;  // metres around the prompted surface point: the region's seeds
   bool is_valid(std::string* why = nullptr) const;
 };
