@@ -19,7 +19,7 @@
 #include "commands.hpp"
 #include "dataset_args.hpp"
 #include "fslam/core/dataset/dataset.hpp"
-#include "fslam/core/eval/segmentation_metrics.hpp"
+#include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/image_io.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
@@ -84,7 +84,9 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   std::printf("map: %zu Gaussians, %d channels; promptless: %d instances\n", map.size(),
               map.feature_dim, labels.count);
 
-  core::InstanceConfusion confusion;
+  core::InstanceOverlap overlap;
+  core::InstanceMatchConfig match;
+  match.predicted_none = -1;  // pixels no instance claims: misses
   std::vector<double> click_iou;
   std::size_t views = 0, failed_clicks = 0;
   for (std::size_t i = static_cast<std::size_t>(args.offset); i < dataset->size();
@@ -104,7 +106,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
     cv::Mat ids;
     if (!core::render_labels(*rasterizer, map, labels, view, 0.5f, &ids, &why)) return fail(why);
     if (truth.type() != CV_16UC1) truth.convertTo(truth, CV_16UC1);
-    if (!confusion.add(ids, truth, &why)) return fail(why);
+    if (!core::accumulate_instance_overlap(ids, truth, match, &overlap, &why)) return fail(why);
 
     // One click per object covering enough of the view.
     std::vector<int> present;
@@ -152,19 +154,20 @@ int run_segment_eval(const SegmentEvalArgs& args) {
     ++views;
   }
   if (views == 0) return fail("no evaluated frame has a tracked pose in " + args.trajectory);
-  const core::InstanceConfusion::Score score = confusion.score();
+  const core::InstanceMatchResult score = core::match_instances(overlap);
   double click_mean = 0;
   for (double v : click_iou) click_mean += v;
   click_mean = click_iou.empty() ? 0.0 : click_mean / static_cast<double>(click_iou.size());
   std::printf("views %zu (every %d frames from %d)\n", views, args.every, args.offset);
-  std::printf("promptless: mIoU %.3f, mAcc %.3f over %zu ground-truth instances (%d predicted)\n",
-              score.miou, score.macc, score.scored, labels.count);
+  std::printf("promptless: mIoU %.3f, mAcc %.3f over %zu ground-truth instances (%d predicted, "
+              "%zu unmatched)\n",
+              score.miou, score.macc, score.iou.size(), labels.count, score.unmatched_predicted);
   std::printf("one click per object: mean IoU %.3f over %zu clicks (%zu found nothing)\n", click_mean,
               click_iou.size(), failed_clicks);
   if (!args.out.empty()) {
     nlohmann::json j;
     j["views"] = views;
-    j["promptless"] = {{"miou", score.miou}, {"macc", score.macc}, {"instances_scored", score.scored},
+    j["promptless"] = {{"miou", score.miou}, {"macc", score.macc}, {"instances_scored", score.iou.size()},
                        {"instances_predicted", labels.count}};
     nlohmann::json per;
     for (const auto& [id, iou] : score.iou) per[std::to_string(id)] = iou;

@@ -17,7 +17,7 @@
 
 #include "cli_runner.hpp"
 #include "fslam/client/client.hpp"
-#include "fslam/core/eval/segmentation_metrics.hpp"
+#include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/io/image_io.hpp"
 #include "fslam/server/map_files.hpp"
 #include "grounding_model.hpp"
@@ -138,10 +138,12 @@ TEST_F(Segment, PromptlessFindsThePanelsWithStableIds) {
   const cv::Mat ids(120, 160, CV_16UC1, first.labels.pixels.data());
   cv::Mat predicted;  // ids + 1 on the wire, -1 = none for the confusion
   ids.convertTo(predicted, CV_32SC1, 1.0, -1.0);
-  core::InstanceConfusion confusion;
-  ASSERT_TRUE(confusion.add(predicted, truth(), &why)) << why;
-  const core::InstanceConfusion::Score score = confusion.score();
-  ASSERT_EQ(score.scored, 3u);
+  core::InstanceOverlap overlap;
+  core::InstanceMatchConfig match;
+  match.predicted_none = -1;
+  ASSERT_TRUE(core::accumulate_instance_overlap(predicted, truth(), match, &overlap, &why)) << why;
+  const core::InstanceMatchResult score = core::match_instances(overlap);
+  ASSERT_EQ(score.iou.size(), 3u);
   for (const auto& [id, iou] : score.iou) EXPECT_GT(iou, 0.9) << "panel " << id;
   std::set<int> instances(predicted.begin<int>(), predicted.end<int>());
   instances.erase(-1);

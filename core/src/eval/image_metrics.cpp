@@ -263,10 +263,11 @@ bool accumulate_instance_overlap(const cv::Mat& predicted_ids, const cv::Mat& gt
     for (int u = 0; u < g.cols; ++u) {
       const int gt = g.at<int>(v, u);
       if (gt == config.ignore_id) continue;
+      ++overlap->gt_area[gt];
       const int pred = p.at<int>(v, u);
+      if (pred == config.predicted_none) continue;
       ++overlap->intersection[{pred, gt}];
       ++overlap->predicted_area[pred];
-      ++overlap->gt_area[gt];
     }
   return true;
 }
@@ -389,6 +390,18 @@ std::vector<int> solve_assignment(const std::vector<double>& cost, int rows, int
   for (std::size_t j = 1; j <= m; ++j)
     if (p[j] != 0) row_to_col[p[j] - 1] = static_cast<int>(j - 1);
   return row_to_col;
+}
+
+double mask_iou(const cv::Mat& mask, const cv::Mat& gt_ids, int id) {
+  const cv::Mat g = as_int(gt_ids);
+  std::int64_t inter = 0, uni = 0;
+  for (int v = 0; v < g.rows; ++v)
+    for (int u = 0; u < g.cols; ++u) {
+      const bool m = mask.at<std::uint8_t>(v, u) != 0, t = g.at<int>(v, u) == id;
+      inter += (m && t) ? 1 : 0;
+      uni += (m || t) ? 1 : 0;
+    }
+  return uni == 0 ? -1.0 : static_cast<double>(inter) / static_cast<double>(uni);
 }
 
 }  // namespace fslam::core

@@ -10,7 +10,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
-#include "fslam/core/eval/segmentation_metrics.hpp"
+#include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/segmentation/segmentation.hpp"
 
 namespace fslam::core {
@@ -93,10 +93,12 @@ TEST(Segmentation, PromptlessFindsTheThreePanels) {
   EXPECT_EQ(l, 0);  // numbered by size: the 50 x 60 panels first
   cv::Mat ids;
   ASSERT_TRUE(render_labels(*s.rasterizer, s.map, labels, s.view, 0.5f, &ids, &why)) << why;
-  InstanceConfusion confusion;
-  ASSERT_TRUE(confusion.add(ids, s.truth(), &why)) << why;
-  const InstanceConfusion::Score score = confusion.score();
-  EXPECT_EQ(score.scored, 3u);
+  InstanceOverlap overlap;
+  InstanceMatchConfig match;
+  match.predicted_none = -1;
+  ASSERT_TRUE(accumulate_instance_overlap(ids, s.truth(), match, &overlap, &why)) << why;
+  const InstanceMatchResult score = match_instances(overlap);
+  EXPECT_EQ(score.iou.size(), 3u);
   EXPECT_GT(score.miou, 0.9);
 }
 
@@ -168,49 +170,26 @@ TEST(Segmentation, AMapWithoutFeaturesIsAClearError) {
   EXPECT_NE(why.find("no features"), std::string::npos) << why;
 }
 
-TEST(SegmentationMetrics, HungarianMatchesBruteForce) {
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<double> d(0.0, 1.0);
-  for (const auto& [rows, cols] : {std::pair{4, 4}, std::pair{3, 5}, std::pair{5, 3}}) {
-    std::vector<double> cost(static_cast<std::size_t>(rows * cols));
-    for (double& c : cost) c = d(rng);
-    const std::vector<int> got = hungarian_assignment(cost, rows, cols);
-    double got_cost = 0;
-    for (int r = 0; r < rows; ++r)
-      if (got[r] >= 0) got_cost += cost[static_cast<std::size_t>(r * cols + got[r])];
-    // Brute force over column permutations (rows >= cols: choose which rows stay out).
-    const int n = std::max(rows, cols);
-    std::vector<int> perm(n);
-    std::iota(perm.begin(), perm.end(), 0);
-    double best = 1e9;
-    do {
-      double c = 0;
-      for (int r = 0; r < rows; ++r)
-        if (perm[r] < cols) c += cost[static_cast<std::size_t>(r * cols + perm[r])];
-      best = std::min(best, c);
-    } while (std::next_permutation(perm.begin(), perm.end()));
-    EXPECT_NEAR(got_cost, best, 1e-12) << rows << "x" << cols;
-  }
-}
-
-TEST(SegmentationMetrics, MergedAndSplitInstancesScoreAsExpected) {
+// Pixels predicted as no instance are misses of the ground truth, never a matched instance.
+TEST(SegmentationMetrics, PixelsOfNoPredictionMatchNothing) {
   cv::Mat truth(1, 8, CV_32SC1), predicted(1, 8, CV_32SC1);
-  // truth 1 1 1 1 2 2 0 0 ; predicted 5 5 7 7 7 7 7 -1
-  const int t[8] = {1, 1, 1, 1, 2, 2, 0, 0}, p[8] = {5, 5, 7, 7, 7, 7, 7, -1};
+  const int t[8] = {1, 1, 1, 1, 2, 2, 0, 0}, p[8] = {5, 5, -1, -1, -1, -1, 7, -1};
   for (int u = 0; u < 8; ++u) {
     truth.at<int>(0, u) = t[u];
     predicted.at<int>(0, u) = p[u];
   }
-  InstanceConfusion c;
+  InstanceOverlap overlap;
+  InstanceMatchConfig match;
+  match.predicted_none = -1;
   std::string why;
-  ASSERT_TRUE(c.add(predicted, truth, &why)) << why;
-  const auto s = c.score(1);
-  // Predicted 7 over labelled pixels covers 4 (2 of truth 1, 2 of truth 2). Best matching:
-  // 1 <-> 5 (IoU 2/4), 2 <-> 7 (IoU 2/4): mIoU 0.5; pixels covered 2/4 and 2/2: mAcc 0.75.
-  EXPECT_NEAR(s.miou, 0.5, 1e-12);
-  EXPECT_NEAR(s.macc, 0.75, 1e-12);
-  EXPECT_EQ(s.matched.at(1), 5);
-  EXPECT_EQ(s.matched.at(2), 7);
+  ASSERT_TRUE(accumulate_instance_overlap(predicted, truth, match, &overlap, &why)) << why;
+  const InstanceMatchResult r = match_instances(overlap);
+  // 1 <-> 5: IoU 2/4; 2 is covered by nothing (7 lies on ignored pixels): IoU 0. Without
+  // predicted_none, -1 would have matched instance 2 with IoU 2/6.
+  EXPECT_NEAR(r.iou.at(1), 0.5, 1e-12);
+  EXPECT_NEAR(r.iou.at(2), 0.0, 1e-12);
+  EXPECT_NEAR(r.miou, 0.25, 1e-12);
+  EXPECT_EQ(r.gt_to_predicted.count(2), 0u);
 }
 
 }  // namespace

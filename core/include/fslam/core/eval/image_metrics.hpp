@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <map>
 #include <string>
 #include <utility>
@@ -97,6 +98,9 @@ SegmentationResult segmentation_metrics(const ConfusionMatrix& confusion);
 
 struct InstanceMatchConfig {
   int ignore_id = 0;  // ground-truth pixels with this id (unannotated / background) are skipped
+  // Predicted pixels with this id belong to no instance: they count in the ground truth's area
+  // (a miss) but match nothing. The default is no such id.
+  int predicted_none = std::numeric_limits<int>::min();
 };
 
 // Pixel overlap between predicted instance ids and ground-truth instance ids, accumulated over
@@ -125,6 +129,9 @@ struct InstanceMatchResult {
 // One-to-one matching of predicted to ground-truth instances maximising the summed IoU
 // (Hungarian algorithm); a pair with zero overlap is not a match.
 InstanceMatchResult match_instances(const InstanceOverlap& overlap);
+
+// IoU of a binary mask (non-zero = in) with gt_ids == id: -1 when both are empty.
+double mask_iou(const cv::Mat& mask, const cv::Mat& gt_ids, int id);
 
 // Minimum-cost assignment (Hungarian / Kuhn-Munkres, O(n^2 m)) on a rows x cols cost matrix
 // (row-major, finite). Returns, for each row, its column, or -1 for rows left over when there
