@@ -111,9 +111,17 @@ run_demo() {
   "$fslam" version
   "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
   "$fslam" info --dataset "$OUT/sequence"
+  # Feature autoencoder weights for the builtin encoder, pretrained on other synthetic rooms
+  # (made once, then reused).
+  local weights="$ROOT/out/autoencoder/builtin.fae"
+  if [[ ! -f "$weights" ]]; then
+    log "feature autoencoder weights (deploy/make_builtin_autoencoder.sh, about a minute)"
+    bash "$ROOT/deploy/make_builtin_autoencoder.sh" --out "$weights" --fslam "$fslam"
+  fi
 
-  log "server (prefix $prefix, maps in $OUT/maps, log $OUT/server.log)"
-  "$server" --prefix "$prefix" --map-dir "$OUT/maps" >"$OUT/server.log" 2>&1 &
+  log "server (prefix $prefix, maps in $OUT/maps, features on, log $OUT/server.log)"
+  "$server" --prefix "$prefix" --map-dir "$OUT/maps" --set "features.autoencoder_path=$weights" \
+    >"$OUT/server.log" 2>&1 &
   server_pid=$!
   # The server is ours: stop it whatever happens below.
   trap '[[ -n "$server_pid" ]] && kill -TERM "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null' EXIT
@@ -127,6 +135,12 @@ run_demo() {
     "$fslam" render --map room --frame "$frame" --prefix "$prefix" \
       --out "$OUT/renders/frame_$(printf %03d "$frame").png"
   done
+  log "segmentation from the server: instances without a prompt, and one click"
+  mkdir -p "$OUT/segmentation"
+  "$fslam" segment --map room --frame 150 --prefix "$prefix" \
+    --out "$OUT/segmentation/instances_150.png" --overlay "$OUT/segmentation/instances_150_overlay.png"
+  "$fslam" segment --map room --frame 150 --points 320,300 --prefix "$prefix" \
+    --out "$OUT/segmentation/click_150.png" --overlay "$OUT/segmentation/click_150_overlay.png"
   "$fslam" status --prefix "$prefix" | tee "$OUT/status.txt"
   "$fslam" save-map --map room --prefix "$prefix"
 
@@ -144,6 +158,7 @@ run_demo() {
   echo "trajectory:      $OUT/trajectory.txt (poses the server sent back, TUM format)"
   echo "stream report:   $OUT/stream.txt (poses received, ATE, frame-to-pose latency by stage)"
   echo "renders:         $OUT/renders/ (colour, depth, normals, opacity from the served map)"
+  echo "segmentation:    $OUT/segmentation/ (promptless instances and a one-click mask, with overlays)"
   echo "map:             $OUT/maps/room/ (map.ply: 3DGS PLY; poses, camera; served again on restart)"
   echo "trajectory plot: $OUT/trajectory.png (tracked vs ground truth)"
   echo "evaluation:      $OUT/trajectory_eval.json (ATE, RPE)"
