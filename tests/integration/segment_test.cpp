@@ -16,6 +16,7 @@
 #include <opencv2/core.hpp>
 
 #include "cli_runner.hpp"
+#include "panel_scene.hpp"
 #include "fslam/client/client.hpp"
 #include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/io/image_io.hpp"
@@ -28,57 +29,20 @@ namespace {
 using test::fslam_bin;
 using test::run_command;
 
-constexpr int kD = 8;
-const core::PinholeCamera kCamera{200.0, 200.0, 79.5, 59.5, 160, 120};  // looks down +z
+constexpr int kD = test::kPanelFeatureDim;
+const core::PinholeCamera kCamera = test::kPanelCamera;
 
-// Panel of Gaussians on z = 2 m, x in [x0, x1), y in [-0.3, 0.3), 1 cm apart.
-void add_panel(core::GaussianMap* map, float x0, float x1, const std::vector<float>& base,
-               std::mt19937* rng) {
-  std::normal_distribution<float> noise(0.0f, 0.05f);
-  for (float x = x0; x < x1 - 1e-6f; x += 0.01f)
-    for (float y = -0.3f; y < 0.3f - 1e-6f; y += 0.01f) {
-      const float mean[3] = {x + 0.005f, y + 0.005f, 2.0f};
-      const float rotation[4] = {1, 0, 0, 0};
-      const float log_scale[3] = {std::log(0.007f), std::log(0.007f), std::log(0.001f)};
-      const float sh[3] = {0.5f, 0.5f, 0.5f};
-      std::vector<float> f(base);
-      for (float& v : f) v += noise(*rng);
-      map->push_back(mean, rotation, log_scale, 4.0f, sh, map->feature_dim > 0 ? f.data() : nullptr);
-    }
-}
-
-// The three panels, saved with the camera and one tracked pose (frame 0 at the origin).
+// The three panels (tests/common/panel_scene.hpp), saved with the camera and one tracked pose
+// (frame 0 at the origin).
 bool write_panels(const std::string& folder, int feature_dim, std::string* why) {
-  auto map = std::make_shared<core::GaussianMap>();
-  map->sh_degree = 0;
-  map->feature_dim = feature_dim;
-  std::mt19937 rng(7);
-  std::vector<float> a(kD, 0.0f), b(kD, 0.0f);
-  a[0] = 1.0f;
-  a[3] = -0.5f;
-  b[1] = 1.0f;
-  b[5] = 0.7f;
-  add_panel(map.get(), -0.5f, 0.0f, a, &rng);
-  add_panel(map.get(), 0.0f, 0.5f, b, &rng);
-  add_panel(map.get(), 0.6f, 0.75f, a, &rng);
   server::StoredMap stored;
-  stored.gaussians = map;
+  stored.gaussians = std::make_shared<core::GaussianMap>(test::panel_map(feature_dim));
   stored.camera = kCamera;
   stored.poses.push_back({0, 0.0, Eigen::Isometry3d::Identity()});
   return server::save_map_folder(folder, stored, why);
 }
 
-// Ground truth per pixel from the origin: 1 left, 2 right, 3 far, 0 elsewhere; `shift` pixels to
-// the left for a camera moved `shift` / 100 m along +x (200 px focal length, 2 m away).
-cv::Mat truth(int shift = 0) {
-  cv::Mat t(120, 160, CV_32SC1, cv::Scalar(0));
-  for (int v = 30; v <= 89; ++v)
-    for (int u = 30; u <= 154; ++u) {
-      const int id = u <= 79 ? 1 : u <= 129 ? 2 : u >= 140 ? 3 : 0;
-      if (u - shift >= 0) t.at<int>(v, u - shift) = id;
-    }
-  return t;
-}
+cv::Mat truth(int shift = 0) { return test::panel_truth(shift); }
 
 cv::Mat mask_of(const client::SegmentOutput& out) {
   EXPECT_EQ(out.labels.bytes_per_channel, 1);

@@ -12,67 +12,23 @@
 
 #include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/segmentation/segmentation.hpp"
+#include "panel_scene.hpp"
 
 namespace fslam::core {
 namespace {
 
-constexpr int kD = 8;
-
-// Panel of Gaussians on z = 2 m, x in [x0, x1), y in [-0.3, 0.3), 1 cm apart, latent `base` plus
-// noise of `noise` per channel.
-void add_panel(GaussianMap* map, float x0, float x1, const std::vector<float>& base, float noise,
-               std::mt19937* rng) {
-  std::normal_distribution<float> n(0.0f, noise);
-  for (float x = x0; x < x1 - 1e-6f; x += 0.01f)
-    for (float y = -0.3f; y < 0.3f - 1e-6f; y += 0.01f) {
-      const float mean[3] = {x + 0.005f, y + 0.005f, 2.0f};
-      const float rotation[4] = {1, 0, 0, 0};
-      const float log_scale[3] = {std::log(0.007f), std::log(0.007f), std::log(0.001f)};
-      const float sh[3] = {0.5f, 0.5f, 0.5f};
-      std::vector<float> f(base);
-      for (float& v : f) v += n(*rng);
-      map->push_back(mean, rotation, log_scale, 4.0f, sh, f.data());
-    }
-}
-
 struct Scene {
-  GaussianMap map;
+  GaussianMap map = test::panel_map();
   RenderView view;
   std::unique_ptr<Rasterizer> rasterizer = make_cpu_rasterizer();
-  std::size_t left = 0, right = 0, far = 0;  // Gaussians per panel, in this order in the map
-  Scene() {
-    map.sh_degree = 0;
-    map.feature_dim = kD;
-    std::mt19937 rng(7);
-    std::vector<float> a(kD, 0.0f), b(kD, 0.0f);
-    a[0] = 1.0f;
-    a[3] = -0.5f;
-    b[1] = 1.0f;
-    b[5] = 0.7f;
-    add_panel(&map, -0.5f, 0.0f, a, 0.05f, &rng);
-    left = map.size();
-    add_panel(&map, 0.0f, 0.5f, b, 0.05f, &rng);
-    right = map.size() - left;
-    add_panel(&map, 0.6f, 0.75f, a, 0.05f, &rng);
-    far = map.size() - left - right;
-    view.camera = {200.0, 200.0, 79.5, 59.5, 160, 120};  // looks down +z from the origin
-  }
-  // Ground truth per pixel: 1 left, 2 right, 3 far, 0 elsewhere: the panel whose extent holds
-  // the pixel centre (edges at u = 29.5, 79.5, 129.5, 139.5, 154.5 and v = 29.5, 89.5).
-  cv::Mat truth() const {
-    cv::Mat t(120, 160, CV_32SC1, cv::Scalar(0));
-    for (int v = 30; v <= 89; ++v)
-      for (int u = 30; u <= 154; ++u) {
-        if (u <= 79) t.at<int>(v, u) = 1;
-        else if (u <= 129) t.at<int>(v, u) = 2;
-        else if (u >= 140) t.at<int>(v, u) = 3;
-      }
-    return t;
-  }
+  std::size_t left = 3000, right = 3000, far = 900;  // Gaussians per panel, in this order
+  Scene() { view.camera = test::kPanelCamera; }
+  cv::Mat truth() const { return test::panel_truth(); }
 };
 
 TEST(Segmentation, PromptlessFindsTheThreePanels) {
   Scene s;
+  ASSERT_EQ(s.map.size(), s.left + s.right + s.far) << "panel sizes changed";
   PromptlessConfig config;
   config.min_instance_gaussians = 100;
   GaussianLabels labels;
