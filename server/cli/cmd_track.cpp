@@ -14,6 +14,7 @@
 #include "commands.hpp"
 #include "dataset_args.hpp"
 #include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/features/latent_features.hpp"
 #include "fslam/core/eval/ate.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/core/tracking/tracker.hpp"
@@ -57,13 +58,20 @@ int run_track(const TrackArgs& args) {
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(args.threads));
 
+  // Source and keyframe features for eq. feat_gicp: one latent per lattice cell of the frame.
+  std::unique_ptr<core::LatentFeatures> features;
+  if (layered.pipeline.features.enabled()) {
+    features = core::LatentFeatures::create(layered.pipeline.features, &why);
+    if (!features) return fail(why);
+    std::fprintf(stderr, "features: %s\n", features->describe().c_str());
+  }
   core::Tracker tracker(config);
   const std::size_t n = dataset->size();
   std::fprintf(stderr, "tracking %zu frames of %s (%s), %d thread(s)\n", n,
                dataset->root().c_str(), dataset->kind().c_str(), args.threads);
 
   core::Trajectory trajectory;
-  StageStats preprocess, registration, map_update, total, load;
+  StageStats preprocess, registration, map_update, total, load, encode;
   std::size_t keyframes = 0, lost = 0, recovered = 0;
   Progress progress("track", n);
 
@@ -83,7 +91,17 @@ int run_track(const TrackArgs& args) {
     if (i == 0 && frame->T_world_camera_gt) tracker.set_initial_pose(*frame->T_world_camera_gt);
 
     core::TrackingResult result;
-    if (!tracker.track(*frame, &result, &why)) return fail(why);
+    core::PlanarImage latent;
+    if (features) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const int stride = config.preprocess.stride;
+      if (!features->latent_image(frame->colour, frame->camera.width / stride,
+                                  frame->camera.height / stride, &latent, &why)) {
+        return fail(why);
+      }
+      encode.add(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    }
+    if (!tracker.track(*frame, &result, &why, features ? &latent : nullptr)) return fail(why);
     if (result.state == core::TrackingState::lost) {
       ++lost;
       std::fprintf(stderr, "\nframe %lld: %s\n", static_cast<long long>(frame->id),
@@ -114,6 +132,7 @@ int run_track(const TrackArgs& args) {
   map_update.print("map update");
   total.print("tracking total");
   load.print("decode (async)");
+  if (features) encode.print("features");
   if (dataset->has_ground_truth()) {
     core::AteResult ate;
     if (!core::compute_ate(dataset->ground_truth(), trajectory, core::AteConfig{}, &ate, &why))
@@ -139,6 +158,9 @@ void add_track_command(CLI::App& root, CommandList* commands) {
   app->add_option("--threads", args->threads,
                   "Threads for the GICP reduction (1 = serial; > 1 sets tracker.parallel)")
       ->capture_default_str();
+  server::add_setting_option(app, "--features", "features.autoencoder_path",
+                             "Feature-guided GICP (eq. feat_gicp) with these autoencoder weights",
+                             &args->config);
   server::add_setting_option(app, "--stride", "tracker.preprocess.stride",
                              "Image-lattice stride of the source points", &args->config);
   server::add_setting_option(app, "--voxel", "tracker.preprocess.voxel_size",

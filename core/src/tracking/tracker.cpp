@@ -1,5 +1,7 @@
 #include "fslam/core/tracking/tracker.hpp"
 
+#include "fslam/core/tracking/point_features.hpp"
+
 #include <chrono>
 #include <cmath>
 
@@ -90,7 +92,8 @@ bool Tracker::is_lost(const GicpResult& gicp) const {
          !is_finite(gicp.T_target_source);
 }
 
-bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string* why) {
+bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string* why,
+                    const PlanarImage* latent) {
   const double t0 = now_ms();
   *result = TrackingResult{};
 
@@ -98,6 +101,7 @@ bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string*
   GaussianPoints source;
   if (!preprocess_frame(frame, config_.preprocess, &source, &result->preprocess, why))
     return false;
+  if (latent != nullptr && !latent->empty()) sample_point_features(*latent, frame.camera, &source);
   const double t1 = now_ms();
   result->timings.preprocess_ms = t1 - t0;
 

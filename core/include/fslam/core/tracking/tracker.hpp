@@ -9,6 +9,7 @@
 #include <string>
 
 #include "fslam/core/geometry/rgbd_frame.hpp"
+#include "fslam/core/render/planar_image.hpp"
 #include "fslam/core/tracking/gicp.hpp"
 #include "fslam/core/tracking/local_map.hpp"
 #include "fslam/core/tracking/preprocess.hpp"
@@ -76,7 +77,10 @@ class Tracker {
 
   // Tracks one frame. The first frame defines the world (its pose is T_world_camera_initial).
   // Returns false with `why` only for bad input; tracking failure is a result state, not an error.
-  bool track(const RgbdFrame& frame, TrackingResult* result, std::string* why);
+  // latent (optional, [D, h, w] over the frame): the points' features for eq. feat_gicp; keyframes
+  // then carry them into the local map as targets.
+  bool track(const RgbdFrame& frame, TrackingResult* result, std::string* why,
+             const PlanarImage* latent = nullptr);
 
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera) { T_initial_ = T_world_camera; }
   const LocalMap& local_map() const { return map_; }
