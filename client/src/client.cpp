@@ -22,13 +22,6 @@ bool fail(std::string* why, const std::string& message) {
   return false;
 }
 
-dds_qos_t* reliable_qos() {
-  dds_qos_t* qos = dds_create_qos();
-  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
-  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
-  return qos;
-}
-
 // Encodes an image into bytes: raw rows, PNG (lossless) or JPEG.
 bool encode(const cv::Mat& image, PayloadEncoding encoding, int jpeg_quality,
             std::vector<std::uint8_t>* bytes, std::string* why) {
@@ -124,52 +117,20 @@ auto wire_floats(std::vector<float>& values) {
 
 Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   participant_ = make_participant(options.domain);
-  dds_qos_t* qos = reliable_qos();
-  frames_topic_ = Entity(check_dds(
-      dds_create_topic(participant_.get(), &fslam_proto_Frame_desc,
-                       topic_name(options.prefix, "frames").c_str(), qos, nullptr),
-      "create topic frames"));
-  poses_topic_ = Entity(check_dds(
-      dds_create_topic(participant_.get(), &fslam_proto_PoseStamped_desc,
-                       topic_name(options.prefix, "poses").c_str(), qos, nullptr),
-      "create topic poses"));
-  control_topic_ = Entity(check_dds(
-      dds_create_topic(participant_.get(), &fslam_proto_SessionControl_desc,
-                       topic_name(options.prefix, "session").c_str(), qos, nullptr),
-      "create topic session"));
-  results_topic_ = Entity(check_dds(
-      dds_create_topic(participant_.get(), &fslam_proto_Result_desc,
-                       topic_name(options.prefix, "results").c_str(), qos, nullptr),
-      "create topic results"));
-  requests_topic_ = Entity(check_dds(
-      dds_create_topic(participant_.get(), &fslam_proto_Request_desc,
-                       topic_name(options.prefix, "requests").c_str(), qos, nullptr),
-      "create topic requests"));
-  request_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), requests_topic_.get(), qos, nullptr),
-                                     "create request writer"));
-  frame_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), frames_topic_.get(), qos, nullptr),
-                                   "create frame writer"));
-  control_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), control_topic_.get(), qos, nullptr),
-                                     "create session writer"));
-  pose_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), poses_topic_.get(), qos, nullptr),
-                                  "create pose reader"));
-  result_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), results_topic_.get(), qos, nullptr),
-                                    "create result reader"));
-  status_topic_ = Entity(check_dds(
-      dds_create_topic(participant_.get(), &fslam_proto_SessionStatus_desc,
-                       topic_name(options.prefix, "status").c_str(), qos, nullptr),
-      "create topic status"));
-  dds_delete_qos(qos);
-  dds_qos_t* best_effort = dds_create_qos();  // status is best effort (docs/protocol.md)
-  dds_qset_reliability(best_effort, DDS_RELIABILITY_BEST_EFFORT, 0);
-  status_reader_ = Entity(check_dds(dds_create_reader(participant_.get(), status_topic_.get(), best_effort, nullptr),
-                                    "create status reader"));
-  dds_delete_qos(best_effort);
-  waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "create waitset"));
-  for (const Entity* reader : {&pose_reader_, &result_reader_, &status_reader_}) {
-    check_dds(dds_set_status_mask(reader->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
-    check_dds(dds_waitset_attach(waitset_.get(), reader->get(), reader->get()), "attach");
-  }
+  const std::string& prefix = options.prefix;
+  frames_topic_ = make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
+  poses_topic_ = make_topic(participant_, &fslam_proto_PoseStamped_desc, prefix, "poses");
+  control_topic_ = make_topic(participant_, &fslam_proto_SessionControl_desc, prefix, "session");
+  results_topic_ = make_topic(participant_, &fslam_proto_Result_desc, prefix, "results");
+  requests_topic_ = make_topic(participant_, &fslam_proto_Request_desc, prefix, "requests");
+  status_topic_ = make_topic(participant_, &fslam_proto_SessionStatus_desc, prefix, "status");
+  request_writer_ = make_writer(participant_, requests_topic_, Delivery::reliable);
+  frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
+  control_writer_ = make_writer(participant_, control_topic_, Delivery::reliable);
+  pose_reader_ = make_reader(participant_, poses_topic_, Delivery::reliable);
+  result_reader_ = make_reader(participant_, results_topic_, Delivery::reliable);
+  status_reader_ = make_reader(participant_, status_topic_, Delivery::best_effort);
+  waitset_ = make_waitset(participant_, {&pose_reader_, &result_reader_, &status_reader_});
   addresses_.insert(id_);
   listener_ = std::thread([this] { listen(); });
 }

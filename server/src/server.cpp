@@ -22,7 +22,6 @@
 
 namespace fslam::server {
 
-using client::check_dds;
 using client::Entity;
 using Clock = std::chrono::steady_clock;
 
@@ -250,43 +249,22 @@ bool Server::activate(std::string* why) {
     }
   }
   try {
+    using client::Delivery;
     participant_ = client::make_participant(config_.domain);
-    dds_qos_t* qos = dds_create_qos();
-    dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
-    dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
-    auto topic = [&](const dds_topic_descriptor_t* desc, const char* name) {
-      return Entity(check_dds(dds_create_topic(participant_.get(), desc,
-                                               client::topic_name(config_.prefix, name).c_str(),
-                                               qos, nullptr),
-                              std::string("create topic ") + name));
-    };
-    auto reader = [&](const Entity& t, const char* what) {
-      return Entity(check_dds(dds_create_reader(participant_.get(), t.get(), qos, nullptr), what));
-    };
-    auto writer = [&](const Entity& t, const char* what) {
-      return Entity(check_dds(dds_create_writer(participant_.get(), t.get(), qos, nullptr), what));
-    };
-    frames_topic_ = topic(&fslam_proto_Frame_desc, "frames");
-    poses_topic_ = topic(&fslam_proto_PoseStamped_desc, "poses");
-    control_topic_ = topic(&fslam_proto_SessionControl_desc, "session");
-    requests_topic_ = topic(&fslam_proto_Request_desc, "requests");
-    results_topic_ = topic(&fslam_proto_Result_desc, "results");
-    status_topic_ = topic(&fslam_proto_SessionStatus_desc, "status");
-    frame_reader_ = reader(frames_topic_, "frame reader");
-    control_reader_ = reader(control_topic_, "session reader");
-    request_reader_ = reader(requests_topic_, "request reader");
-    pose_writer_ = writer(poses_topic_, "pose writer");
-    result_writer_ = writer(results_topic_, "result writer");
-    dds_delete_qos(qos);
-    dds_qos_t* best_effort = dds_create_qos();
-    dds_qset_reliability(best_effort, DDS_RELIABILITY_BEST_EFFORT, 0);
-    status_writer_ = Entity(check_dds(dds_create_writer(participant_.get(), status_topic_.get(), best_effort, nullptr), "status writer"));
-    dds_delete_qos(best_effort);
-    waitset_ = Entity(check_dds(dds_create_waitset(participant_.get()), "waitset"));
-    for (const Entity* r : {&frame_reader_, &control_reader_, &request_reader_}) {
-      check_dds(dds_set_status_mask(r->get(), DDS_DATA_AVAILABLE_STATUS), "status mask");
-      check_dds(dds_waitset_attach(waitset_.get(), r->get(), r->get()), "attach");
-    }
+    const std::string& prefix = config_.prefix;
+    frames_topic_ = client::make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
+    poses_topic_ = client::make_topic(participant_, &fslam_proto_PoseStamped_desc, prefix, "poses");
+    control_topic_ = client::make_topic(participant_, &fslam_proto_SessionControl_desc, prefix, "session");
+    requests_topic_ = client::make_topic(participant_, &fslam_proto_Request_desc, prefix, "requests");
+    results_topic_ = client::make_topic(participant_, &fslam_proto_Result_desc, prefix, "results");
+    status_topic_ = client::make_topic(participant_, &fslam_proto_SessionStatus_desc, prefix, "status");
+    frame_reader_ = client::make_reader(participant_, frames_topic_, Delivery::reliable);
+    control_reader_ = client::make_reader(participant_, control_topic_, Delivery::reliable);
+    request_reader_ = client::make_reader(participant_, requests_topic_, Delivery::reliable);
+    pose_writer_ = client::make_writer(participant_, poses_topic_, Delivery::reliable);
+    result_writer_ = client::make_writer(participant_, results_topic_, Delivery::reliable);
+    status_writer_ = client::make_writer(participant_, status_topic_, Delivery::best_effort);
+    waitset_ = client::make_waitset(participant_, {&frame_reader_, &control_reader_, &request_reader_});
   } catch (const client::DdsError& e) {
     return core::fail(why, e.what());
   }

@@ -1,6 +1,7 @@
 // A small RAII layer over the Cyclone DDS C API, shared by every featureslam process.
 #pragma once
 
+#include <initializer_list>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -49,6 +50,19 @@ class Entity {
 // A participant on `domain`. Which network it uses comes from CYCLONEDDS_URI: on these machines
 // that is always configs/dds/loopback.xml (see docs/protocol.md).
 Entity make_participant(dds_domainid_t domain);
+
+// featureslam's two kinds of delivery (docs/protocol.md): reliable with the last 64 samples per
+// instance (frames, poses, session control, requests, results), or best effort (status).
+enum class Delivery { reliable, best_effort };
+
+// Topic <prefix>/<name> of type `desc` (every topic is created with reliable QoS; readers and
+// writers choose their own).
+Entity make_topic(const Entity& participant, const dds_topic_descriptor_t* desc,
+                  const std::string& prefix, const char* name);
+Entity make_reader(const Entity& participant, const Entity& topic, Delivery delivery);
+Entity make_writer(const Entity& participant, const Entity& topic, Delivery delivery);
+// A waitset woken when any of `readers` has data.
+Entity make_waitset(const Entity& participant, std::initializer_list<const Entity*> readers);
 
 // Topic name with the deployment's prefix, e.g. topic_name("test42", "poses") -> "test42/poses".
 // Tests use their own prefix so that parallel runs never see each other.
