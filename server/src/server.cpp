@@ -22,7 +22,6 @@
 
 namespace fslam::server {
 
-using client::Entity;
 using Clock = std::chrono::steady_clock;
 
 // The promptless instances of one map version (docs/segmentation.md).
