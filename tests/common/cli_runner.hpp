@@ -52,4 +52,22 @@ inline void stop_process(pid_t pid) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
 }
 
+// A server a test started, stopped when the guard goes out of scope: an assertion that ends the
+// test early never leaves the process running.
+class ScopedServer {
+ public:
+  ScopedServer(const std::string& args, const std::string& log) : pid_(start_server(args, log)) {}
+  ~ScopedServer() { stop(); }
+  ScopedServer(const ScopedServer&) = delete;
+  ScopedServer& operator=(const ScopedServer&) = delete;
+  pid_t pid() const { return pid_; }
+  void stop() {
+    stop_process(pid_);
+    pid_ = -1;
+  }
+
+ private:
+  pid_t pid_;
+};
+
 }  // namespace fslam::test

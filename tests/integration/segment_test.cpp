@@ -251,11 +251,11 @@ TEST_F(Segment, TextQueryGoesThroughTheGroundingModel) {
                                                        50.0 / 160, 60.0 / 120, &why);
   if (model.empty()) GTEST_SKIP() << why;
   const std::string prefix = prefix_ + "text";
-  const pid_t server = test::start_server(
+  test::ScopedServer server(
       "--prefix " + prefix + " --map-dir " + dir_ + "/maps --set server.grounding_model=" + model +
           " --set server.grounding_input_size=64 --set server.save_maps_at_shutdown=false",
       dir_ + "/text_server.log");
-  ASSERT_GT(server, 0);
+  ASSERT_GT(server.pid(), 0);
   {
     client::Client c(options(prefix));
     client::SegmentQuery q = query(client::SegmentMode::text);
@@ -267,7 +267,6 @@ TEST_F(Segment, TextQueryGoesThroughTheGroundingModel) {
       EXPECT_GT(core::mask_iou(mask_of(out), truth(), 1), 0.9);
     }
   }
-  test::stop_process(server);
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <fstream>
 #include <future>
+#include <memory>
 #include <mutex>
 #include <sstream>
 #include <string>
@@ -366,8 +367,8 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 20 --seed 9", &out, &err), 0)
       << err;
   const std::string server_args = "--prefix " + prefix + " --map-dir " + dir + "/maps";
-  pid_t server = start_server(server_args, dir + "/server1.log");
-  ASSERT_GT(server, 0);
+  auto server = std::make_unique<test::ScopedServer>(server_args, dir + "/server1.log");
+  ASSERT_GT(server->pid(), 0);
   ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir + "/seq --prefix " + prefix +
                             " --session s --map kept",
                         &out, &err),
@@ -387,10 +388,11 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
     EXPECT_FALSE(c.save_map("kept", "../outside", 20000, &folder, &why));
     EXPECT_NE(why.find(".."), std::string::npos) << why;
   }
-  stop_process(server);  // saves "kept" on the way out
-  ASSERT_NE(kill(server, 0), 0);
-  server = start_server(server_args, dir + "/server2.log");
-  ASSERT_GT(server, 0);
+  const pid_t first = server->pid();
+  server->stop();  // saves "kept" on the way out
+  ASSERT_NE(kill(first, 0), 0);
+  server = std::make_unique<test::ScopedServer>(server_args, dir + "/server2.log");
+  ASSERT_GT(server->pid(), 0);
   {
     client::Client c(options_for(prefix));
     ASSERT_TRUE(c.attach_map("kept", 20000, &why)) << why;
@@ -399,7 +401,7 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
     ASSERT_TRUE(c.load_map("again", "kept", 20000, &why)) << why;
     EXPECT_FALSE(c.load_map("bad", "nothing-here", 20000, &why));
   }
-  stop_process(server);
+  server->stop();
   EXPECT_EQ(before.map_gaussians, after.map_gaussians);
   ASSERT_EQ(before.images.size(), after.images.size());
   for (std::size_t i = 0; i < before.images.size(); ++i) {
