@@ -113,6 +113,21 @@ auto wire_floats(std::vector<float>& values) {
                                                       values.data(), false};
 }
 
+// The fields every fslam/requests sample carries. `strings` owns what the sample points into
+// and must outlive the write.
+struct RequestStrings {
+  std::string client, map, path;
+};
+
+void fill_request(RequestStrings* strings, std::uint64_t id, fslam_proto_RequestKind kind,
+                  fslam_proto_Request* msg) {
+  msg->client = strings->client.data();
+  msg->request_id = id;
+  msg->map_name = strings->map.data();
+  msg->kind = kind;
+  msg->path = strings->path.data();
+}
+
 }  // namespace
 
 Client::Client(const ClientOptions& options) : id_(make_client_id()) {
@@ -227,12 +242,9 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
 bool Client::render(const RenderQuery& query, RenderOutput* output, int timeout_ms, std::string* why) {
   if (query.map_name.empty()) return fail(why, "render: no map name");
   fslam_proto_Request msg{};
-  std::string client = id_, map = query.map_name, empty;
-  msg.client = client.data();
-  msg.request_id = new_request_id();
-  msg.map_name = map.data();
-  msg.kind = fslam_proto_REQUEST_RENDER;
-  msg.path = empty.data();
+  RequestStrings strings{id_, query.map_name, ""};
+  const std::string& map = strings.map;
+  fill_request(&strings, new_request_id(), fslam_proto_REQUEST_RENDER, &msg);
   to_wire(query, &msg.render);
   msg.render.channels = query.channels;
   msg.render.depth_scale = query.depth_scale;
@@ -258,13 +270,11 @@ bool Client::segment(const SegmentQuery& query, SegmentOutput* output, int timeo
                      std::string* why) {
   if (query.map_name.empty()) return fail(why, "segment: no map name");
   fslam_proto_Request msg{};
-  std::string client = id_, map = query.map_name, text = query.text, empty;
+  RequestStrings strings{id_, query.map_name, ""};
+  const std::string& map = strings.map;
+  std::string text = query.text;
   std::vector<float> points = query.points, boxes = query.boxes;
-  msg.client = client.data();
-  msg.request_id = new_request_id();
-  msg.map_name = map.data();
-  msg.kind = fslam_proto_REQUEST_SEGMENT;
-  msg.path = empty.data();
+  fill_request(&strings, new_request_id(), fslam_proto_REQUEST_SEGMENT, &msg);
   to_wire(query.view, &msg.render);
   fslam_proto_SegmentRequest& s = msg.segment;
   switch (query.mode) {
@@ -300,34 +310,28 @@ bool Client::segment(const SegmentQuery& query, SegmentOutput* output, int timeo
 
 bool Client::save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
                       std::string* saved_to, std::string* why) {
-  fslam_proto_Request msg{};
-  std::string client = id_, map = map_name, path = folder;
-  msg.client = client.data();
-  msg.request_id = new_request_id();
-  msg.map_name = map.data();
-  msg.kind = fslam_proto_REQUEST_SAVE_MAP;
-  msg.path = path.data();
-  Answer answer;
-  if (!call(request_writer_.get(), &msg, id_, msg.request_id, "save map '" + map + "'", timeout_ms,
-            &answer, why)) {
-    return false;
-  }
-  if (saved_to) *saved_to = answer.path;
-  return true;
+  return map_folder_request(true, map_name, folder, timeout_ms, saved_to, why);
 }
 
 bool Client::load_map(const std::string& map_name, const std::string& folder, int timeout_ms,
                       std::string* why) {
+  return map_folder_request(false, map_name, folder, timeout_ms, nullptr, why);
+}
+
+bool Client::map_folder_request(bool save, const std::string& map_name, const std::string& folder,
+                                int timeout_ms, std::string* server_folder, std::string* why) {
   fslam_proto_Request msg{};
-  std::string client = id_, map = map_name, path = folder;
-  msg.client = client.data();
-  msg.request_id = new_request_id();
-  msg.map_name = map.data();
-  msg.kind = fslam_proto_REQUEST_LOAD_MAP;
-  msg.path = path.data();
+  RequestStrings strings{id_, map_name, folder};
+  fill_request(&strings, new_request_id(),
+               save ? fslam_proto_REQUEST_SAVE_MAP : fslam_proto_REQUEST_LOAD_MAP, &msg);
   Answer answer;
-  return call(request_writer_.get(), &msg, id_, msg.request_id, "load map '" + map + "'", timeout_ms,
-              &answer, why);
+  if (!call(request_writer_.get(), &msg, id_, msg.request_id,
+            std::string(save ? "save" : "load") + " map '" + map_name + "'", timeout_ms, &answer,
+            why)) {
+    return false;
+  }
+  if (server_folder) *server_folder = answer.path;
+  return true;
 }
 
 std::uint32_t Client::matched_servers() const {

@@ -135,11 +135,8 @@ int run_render(const RenderArgs& args) {
     if (!args.trajectory.empty()) {
       core::Trajectory trajectory;
       if (!core::read_tum_trajectory(args.trajectory, &trajectory, &why)) return fail(why);
-      const double t = dataset->timestamp(i);
-      const core::StampedPose* best = nullptr;
-      for (const auto& p : trajectory)
-        if (!best || std::abs(p.timestamp - t) < std::abs(best->timestamp - t)) best = &p;
-      if (!best || std::abs(best->timestamp - t) > 0.02) {
+      const core::StampedPose* best = core::nearest_pose(trajectory, dataset->timestamp(i));
+      if (!best) {
         return fail(args.trajectory + " has no pose within 20 ms of frame " + std::to_string(i));
       }
       T_world_camera = best->T_world_camera;

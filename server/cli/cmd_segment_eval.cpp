@@ -84,6 +84,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   std::printf("map: %zu Gaussians, %d channels; promptless: %d instances\n", map.size(),
               map.feature_dim, labels.count);
 
+  const core::PromptSelector prompts(map, args.prompt);  // one graph for every click
   core::InstanceOverlap overlap;
   core::InstanceMatchConfig match;
   match.predicted_none = -1;  // pixels no instance claims: misses
@@ -95,11 +96,8 @@ int run_segment_eval(const SegmentEvalArgs& args) {
     if (!dataset->load_labels(i, &truth, nullptr, &why) || truth.empty()) {
       return fail("frame " + std::to_string(i) + " has no instance labels: " + why);
     }
-    const double t = dataset->timestamp(i);
-    const core::StampedPose* pose = nullptr;
-    for (const auto& p : trajectory)
-      if (!pose || std::abs(p.timestamp - t) < std::abs(pose->timestamp - t)) pose = &p;
-    if (!pose || std::abs(pose->timestamp - t) > 0.02) continue;  // untracked frame
+    const core::StampedPose* pose = core::nearest_pose(trajectory, dataset->timestamp(i));
+    if (!pose) continue;  // untracked frame
     core::RenderView view;
     view.camera = dataset->camera();
     view.T_camera_world = pose->T_world_camera.inverse();
@@ -125,7 +123,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       std::vector<std::uint8_t> selected;
       cv::Mat mask;
       std::string click_why;
-      if (!core::select_by_points(*rasterizer, map, view, {{at.x, at.y}}, args.prompt, &selected, &click_why) ||
+      if (!prompts.select_by_points(*rasterizer, view, {{at.x, at.y}}, &selected, &click_why) ||
           !core::render_selection(*rasterizer, map, selected, view, 0.5f, &mask, &why)) {
         ++failed_clicks;  // scored as IoU 0: the click found nothing
         click_iou.push_back(0.0);

@@ -908,10 +908,10 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
     if (!has_features(*version)) {
       return core::fail(why, "segment: the map carries no features; stream with features on");
     }
-    const core::PromptConfig config;
+    const core::PromptSelector prompts(*version, core::PromptConfig{});  // one graph for all boxes
     std::vector<std::uint8_t> selected;
     if (mode == fslam_proto_SEGMENT_POINTS) {
-      if (!core::select_by_points(rasterizer, *version, view, points, config, &selected, why)) return false;
+      if (!prompts.select_by_points(rasterizer, view, points, &selected, why)) return false;
     } else {
       if (mode == fslam_proto_SEGMENT_TEXT) {
         // The detector looks at the prompt view as the map renders it; its boxes become prompts.
@@ -934,7 +934,7 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
       selected.assign(version->size(), 0);
       for (const core::BoxPrompt& box : boxes) {
         std::vector<std::uint8_t> one;
-        if (!core::select_by_box(rasterizer, *version, view, box, config, &one, why)) return false;
+        if (!prompts.select_by_box(rasterizer, view, box, &one, why)) return false;
         for (std::size_t i = 0; i < one.size(); ++i) selected[i] |= one[i];
       }
     }

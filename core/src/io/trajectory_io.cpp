@@ -48,4 +48,11 @@ bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory,
   return true;
 }
 
+const StampedPose* nearest_pose(const Trajectory& trajectory, double t, double max_difference) {
+  const StampedPose* best = nullptr;
+  for (const StampedPose& p : trajectory)
+    if (!best || std::abs(p.timestamp - t) < std::abs(best->timestamp - t)) best = &p;
+  return best && std::abs(best->timestamp - t) <= max_difference ? best : nullptr;
+}
+
 }  // namespace fslam::core

@@ -420,13 +420,30 @@ bool render_selection(const Rasterizer& rasterizer, const GaussianMap& map,
   return true;
 }
 
-bool select_by_points(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
-                      const std::vector<Eigen::Vector2d>& points, const PromptConfig& config,
-                      std::vector<std::uint8_t>* selected, std::string* why) {
-  if (!config.is_valid(why) || !check_features(map, why)) return false;
+// The feature space and neighbour graph of one map, built once for all its prompts.
+struct PromptSelector::Graph {
+  Graph(const GaussianMap& map, const FeatureGraphConfig& config)
+      : space(map, config), neighbours(space.neighbours()) {}
+  FeatureSpace space;
+  std::vector<std::vector<int>> neighbours;
+};
+
+PromptSelector::PromptSelector(const GaussianMap& map, const PromptConfig& config)
+    : map_(map), config_(config) {
+  if (config.is_valid(&error_) && check_features(map, &error_)) graph_ = std::make_unique<Graph>(map, config.graph);
+}
+
+PromptSelector::~PromptSelector() = default;
+
+bool PromptSelector::select_by_points(const Rasterizer& rasterizer, const RenderView& view,
+                                      const std::vector<Eigen::Vector2d>& points,
+                                      std::vector<std::uint8_t>* selected, std::string* why) const {
+  if (!graph_) return fail(why, error_);
   if (points.empty()) return fail(why, "point prompt: no points");
-  const FeatureSpace space(map, config.graph);
-  const std::vector<std::vector<int>> neighbours = space.neighbours();
+  const GaussianMap& map = map_;
+  const PromptConfig& config = config_;
+  const FeatureSpace& space = graph_->space;
+  const std::vector<std::vector<int>>& neighbours = graph_->neighbours;
   PromptView pv;
   if (!render_prompt_view(rasterizer, map, view, &pv, why)) return false;
   selected->assign(map.size(), 0);
@@ -448,13 +465,15 @@ bool select_by_points(const Rasterizer& rasterizer, const GaussianMap& map, cons
   return true;
 }
 
-bool select_by_box(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
-                   const BoxPrompt& box, const PromptConfig& config,
-                   std::vector<std::uint8_t>* selected, std::string* why) {
-  if (!config.is_valid(why) || !check_features(map, why)) return false;
+bool PromptSelector::select_by_box(const Rasterizer& rasterizer, const RenderView& view,
+                                   const BoxPrompt& box, std::vector<std::uint8_t>* selected,
+                                   std::string* why) const {
+  if (!graph_) return fail(why, error_);
   if (!(box.u1 > box.u0 && box.v1 > box.v0)) return fail(why, "box prompt: empty box");
-  const FeatureSpace space(map, config.graph);
-  const std::vector<std::vector<int>> neighbours = space.neighbours();
+  const GaussianMap& map = map_;
+  const PromptConfig& config = config_;
+  const FeatureSpace& space = graph_->space;
+  const std::vector<std::vector<int>>& neighbours = graph_->neighbours;
   PromptView pv;
   if (!render_prompt_view(rasterizer, map, view, &pv, why)) return false;
   // The inner half of the box: the object most likely fills it, its border may be background.
@@ -491,6 +510,18 @@ bool select_by_box(const Rasterizer& rasterizer, const GaussianMap& map, const R
   if (seeds.empty()) return fail(why, "box prompt: no Gaussian inside the box has the box's features");
   grow(space, neighbours, seeds, median.data(), config.graph.feature_threshold, selected);
   return true;
+}
+
+bool select_by_points(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
+                      const std::vector<Eigen::Vector2d>& points, const PromptConfig& config,
+                      std::vector<std::uint8_t>* selected, std::string* why) {
+  return PromptSelector(map, config).select_by_points(rasterizer, view, points, selected, why);
+}
+
+bool select_by_box(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
+                   const BoxPrompt& box, const PromptConfig& config,
+                   std::vector<std::uint8_t>* selected, std::string* why) {
+  return PromptSelector(map, config).select_by_box(rasterizer, view, box, selected, why);
 }
 
 }  // namespace fslam::core

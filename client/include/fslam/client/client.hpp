@@ -193,6 +193,9 @@ class Client {
   bool call(dds_entity_t writer, const void* sample, const std::string& client, std::uint64_t id,
             const std::string& what, int timeout_ms, Answer* answer, std::string* why);
   std::uint64_t new_request_id();
+  // REQUEST_SAVE_MAP (save) or REQUEST_LOAD_MAP; server_folder (optional) gets the result's path.
+  bool map_folder_request(bool save, const std::string& map_name, const std::string& folder,
+                          int timeout_ms, std::string* server_folder, std::string* why);
 
   std::string id_;
   Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_, status_topic_;

@@ -62,3 +62,20 @@ TEST(TrajectoryIo, AcceptsCommasTabsAndComments) {
 
 }  // namespace
 }  // namespace fslam::core
+
+namespace fslam::core {
+namespace {
+
+TEST(TrajectoryIo, NearestPoseWithinTheTolerance) {
+  Trajectory t(3);
+  t[0].timestamp = 1.00;
+  t[1].timestamp = 1.05;
+  t[2].timestamp = 1.10;
+  EXPECT_EQ(nearest_pose(t, 1.04), &t[1]);
+  EXPECT_EQ(nearest_pose(t, 1.11), &t[2]);
+  EXPECT_EQ(nearest_pose(t, 1.20), nullptr);  // 100 ms from the nearest
+  EXPECT_EQ(nearest_pose(Trajectory{}, 1.0), nullptr);
+}
+
+}  // namespace
+}  // namespace fslam::core

@@ -20,4 +20,8 @@ using Trajectory = std::vector<StampedPose>;
 bool read_tum_trajectory(const std::string& path, Trajectory* trajectory, std::string* why);
 bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory, std::string* why);
 
+// The pose whose timestamp is nearest to `t`, or nullptr when none is within max_difference
+// seconds (the TUM association tolerance by default).
+const StampedPose* nearest_pose(const Trajectory& trajectory, double t, double max_difference = 0.02);
+
 }  // namespace fslam::core

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -87,6 +88,30 @@ bool select_by_points(const Rasterizer& rasterizer, const GaussianMap& map, cons
 bool select_by_box(const Rasterizer& rasterizer, const GaussianMap& map, const RenderView& view,
                    const BoxPrompt& box, const PromptConfig& config,
                    std::vector<std::uint8_t>* selected, std::string* why);
+
+// Prompts on one map: the feature space and neighbour graph are built once, in the
+// constructor, and every prompt reuses them (the free functions above build them per call).
+// `map` must outlive the selector and stay unchanged. An invalid config or a map without
+// features makes every call fail with the reason.
+class PromptSelector {
+ public:
+  PromptSelector(const GaussianMap& map, const PromptConfig& config);
+  ~PromptSelector();
+  PromptSelector(const PromptSelector&) = delete;
+  PromptSelector& operator=(const PromptSelector&) = delete;
+  bool select_by_points(const Rasterizer& rasterizer, const RenderView& view,
+                        const std::vector<Eigen::Vector2d>& points,
+                        std::vector<std::uint8_t>* selected, std::string* why) const;
+  bool select_by_box(const Rasterizer& rasterizer, const RenderView& view, const BoxPrompt& box,
+                     std::vector<std::uint8_t>* selected, std::string* why) const;
+
+ private:
+  struct Graph;
+  const GaussianMap& map_;
+  PromptConfig config_;
+  std::string error_;
+  std::unique_ptr<Graph> graph_;
+};
 
 // Renders a selection as a mask: 255 where the selected Gaussians make up most of the pixel's
 // opacity and it is at least min_alpha opaque, else 0. mask: CV_8UC1.
