@@ -279,6 +279,8 @@ int run_slam(const RunArgs& args) {
 
   nlohmann::json metrics;
   metrics["dataset"] = {{"path", dataset->root()}, {"kind", dataset->kind()}, {"frames", n}};
+  // Colour was resampled onto the depth pixels: the held-out images are the registered ones.
+  if (options.colour_camera) metrics["dataset"]["colour_camera"] = options.colour_camera->to_string();
   metrics["mode"] = config.realtime ? "realtime" : "fast";
   metrics["mapping_poses"] = args.gt_poses ? "ground truth" : "tracked";
   if (config.realtime) metrics["realtime_fps"] = args.realtime_fps;

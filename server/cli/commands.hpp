@@ -22,6 +22,7 @@ void add_version_command(CLI::App& root, CommandList* commands);
 void add_synth_command(CLI::App& root, CommandList* commands);
 void add_eval_command(CLI::App& root, CommandList* commands);
 void add_info_command(CLI::App& root, CommandList* commands);
+void add_calibrate_colour_command(CLI::App& root, CommandList* commands);
 void add_track_command(CLI::App& root, CommandList* commands);
 void add_run_command(CLI::App& root, CommandList* commands);
 void add_render_command(CLI::App& root, CommandList* commands);

@@ -19,6 +19,14 @@ bool DatasetArgs::to_options(core::DatasetOptions* options, std::string* why) co
     }
     result.intrinsics = camera;
   }
+  if (!colour_camera.empty()) {
+    core::ColourCamera colour;
+    if (!core::ColourCamera::parse(colour_camera, &colour, why)) {
+      if (why) *why = "--colour-camera: " + *why;
+      return false;
+    }
+    result.colour_camera = colour;
+  }
   *options = result;
   return true;
 }
@@ -38,6 +46,10 @@ void add_dataset_options(CLI::App* app, DatasetArgs* args, bool required) {
   app->add_option("--intrinsics", args->intrinsics,
                   "Override the camera: fx,fy,cx,cy in pixels, optionally ,width,height (default: "
                   "the images' size)");
+  app->add_option("--colour-camera", args->colour_camera,
+                  "Colour not registered to depth: the colour sensor as fx,fy,cx,cy,tx,ty,tz "
+                  "(pixels; metres from the depth camera); colour is resampled onto the depth "
+                  "pixels (fslam calibrate-colour estimates it; docs/datasets.md)");
 }
 
 }  // namespace fslam::cli

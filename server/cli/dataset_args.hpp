@@ -1,5 +1,6 @@
 // The dataset options every command that reads a recorded sequence shares (info, track, run,
-// stream): --dataset DIR [--kind K] [--frames A:B[:S]] [--intrinsics fx,fy,cx,cy].
+// stream): --dataset DIR [--kind K] [--frames A:B[:S]] [--intrinsics fx,fy,cx,cy]
+// [--colour-camera fx,fy,cx,cy,tx,ty,tz].
 #pragma once
 
 #include <string>
@@ -17,8 +18,9 @@ struct DatasetArgs {
   std::string kind = "auto";
   std::string frames;      // empty: all frames
   std::string intrinsics;  // empty: the dataset's own
+  std::string colour_camera;  // empty: colour is registered to depth
 
-  // Parses --frames and --intrinsics into core's options; the message says which flag is wrong.
+  // Parses --frames, --intrinsics and --colour-camera into core's options; the message says which flag is wrong.
   bool to_options(core::DatasetOptions* options, std::string* why) const;
 };
 

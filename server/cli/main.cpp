@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   fslam::cli::add_version_command(app, &commands);
   fslam::cli::add_synth_command(app, &commands);
   fslam::cli::add_info_command(app, &commands);
+  fslam::cli::add_calibrate_colour_command(app, &commands);
   fslam::cli::add_eval_command(app, &commands);
   fslam::cli::add_track_command(app, &commands);
   fslam::cli::add_run_command(app, &commands);

@@ -90,15 +90,10 @@ bool FrameSelection::apply(std::size_t count, const std::string& source,
 bool parse_intrinsics(const std::string& text, PinholeCamera* camera, std::string* why) {
   const std::string usage = "intrinsics '" + text + "': ";
   std::vector<double> values;
-  for (const std::string& part : split(text, ", ")) {
-    if (part.empty()) continue;
-    double v = 0.0;
-    if (!parse_double(part, &v) || !std::isfinite(v))
-      return fail(why, usage + "'" + part + "' is not a finite number");
-    values.push_back(v);
-  }
   std::string reason;
-  if (!camera_from_values(values, camera, &reason)) return fail(why, usage + reason);
+  if (!parse_number_list(text, &values, &reason) ||
+      !camera_from_values(values, camera, &reason))
+    return fail(why, usage + reason);
   return true;
 }
 

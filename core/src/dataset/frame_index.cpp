@@ -64,10 +64,16 @@ class IndexedDataset final : public Dataset {
     out.camera = index_.camera;
     out.T_world_camera_gt = r.T_world_camera_gt;
     if (!read_colour_image(r.colour_path, &out.colour, why) ||
-        !check_size(r.colour_path, out.colour, why) ||
+        (!index_.colour_camera && !check_size(r.colour_path, out.colour, why)) ||
         !read_depth_image(r.depth_path, index_.depth_scale, &out.depth, why) ||
         !check_size(r.depth_path, out.depth, why))
       return false;
+    if (index_.colour_camera) {
+      std::string reason;
+      if (!register_colour_to_depth(out.colour, out.depth, index_.camera, *index_.colour_camera,
+                                    &out.colour, &reason))
+        return fail(why, r.colour_path + ": " + reason);
+    }
     *frame = std::move(out);
     return true;
   }
@@ -134,6 +140,14 @@ std::unique_ptr<Dataset> make_indexed_dataset(FrameIndex index, const DatasetOpt
   if (options.intrinsics) {
     index.camera = *options.intrinsics;
     index.camera_source = "explicit intrinsics";
+  }
+  if (options.colour_camera) {
+    std::string reason;
+    if (!options.colour_camera->is_valid(&reason)) {
+      fail(why, "colour camera: " + reason);
+      return nullptr;
+    }
+    index.colour_camera = options.colour_camera;
   }
   // The first frame's depth image fixes the size when the intrinsics do not state one, and
   // catches a stated size that does not fit the images before any frame is processed.

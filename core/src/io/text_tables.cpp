@@ -18,6 +18,23 @@ bool parse_double(const std::string& text, double* value) {
   return true;
 }
 
+bool parse_number_list(const std::string& text, std::vector<double>* values, std::string* why) {
+  std::string spaced = text;
+  for (char& c : spaced)
+    if (c == ',' || c == '\t') c = ' ';
+  std::istringstream fields(spaced);
+  std::vector<double> result;
+  std::string field;
+  while (fields >> field) {
+    double v = 0.0;
+    if (!parse_double(field, &v) || !std::isfinite(v))
+      return fail(why, "'" + field + "' is not a finite number");
+    result.push_back(v);
+  }
+  *values = std::move(result);
+  return true;
+}
+
 bool read_text_rows(const std::string& path, std::vector<TextRow>* rows, std::string* why) {
   std::ifstream in(path);
   if (!in) return fail(why, path + ": cannot open file");

@@ -52,12 +52,12 @@ TEST(Dataset, MissingFolderAndUnknownKind) {
   std::string why;
   EXPECT_FALSE(open_dataset((dir / "nope").string(), {}, &why));
   EXPECT_NAMES_FILE(why, "nope");
-  EXPECT_FALSE(open_dataset((dir / "nope").string(), DatasetOptions{"tum", {}, {}}, &why));
+  EXPECT_FALSE(open_dataset((dir / "nope").string(), DatasetOptions{"tum", {}, {}, {}}, &why));
   EXPECT_NAMES_FILE(why, "nope");
   test::write_text(dir / "file", "x");
   EXPECT_FALSE(open_dataset((dir / "file").string(), {}, &why));
   EXPECT_NE(why.find("not a folder"), std::string::npos) << why;
-  EXPECT_FALSE(open_dataset(dir.string(), DatasetOptions{"scannet", {}, {}}, &why));
+  EXPECT_FALSE(open_dataset(dir.string(), DatasetOptions{"scannet", {}, {}, {}}, &why));
   EXPECT_NE(why.find("scannet"), std::string::npos) << why;
   EXPECT_EQ(dataset_kinds(), (std::vector<std::string>{"tum", "7scenes", "replica"}));
 }

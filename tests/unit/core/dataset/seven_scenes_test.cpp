@@ -249,6 +249,36 @@ TEST(SevenScenes, SmallSequenceReads) {
   EXPECT_FALSE(dataset->load_labels(0, &instance, nullptr, &why));
 }
 
+TEST(SevenScenes, ColourCameraRegistersColourOntoTheDepthPixels) {
+  const fs::path dir = write_small_sequence("colour_camera");
+  // A 16x12 colour sensor with twice the depth camera's focal length, co-located: depth pixel u
+  // sees colour pixel 2 (u - 3.5) + 7.5 = 2u + 0.5. Its red channel is 10 per colour pixel.
+  cv::Mat rgb(12, 16, CV_8UC3);
+  for (int v = 0; v < rgb.rows; ++v)
+    for (int u = 0; u < rgb.cols; ++u) rgb.at<cv::Vec3b>(v, u) = cv::Vec3b(10 * u, 50, 50);
+  std::string why;
+  ASSERT_TRUE(write_image((dir / "frame-000001.color.png").string(), rgb, &why)) << why;
+  DatasetOptions options;
+  ASSERT_TRUE(ColourCamera::parse("10,10,7.5,5.5,0,0,0", &options.colour_camera.emplace(), &why))
+      << why;
+  const auto dataset = open_or_fail(dir, options);
+  ASSERT_TRUE(dataset);
+  RgbdFrame frame;
+  ASSERT_TRUE(dataset->load(1, &frame, &why)) << why;
+  ASSERT_EQ(frame.colour.size(), cv::Size(8, 6));  // the depth camera's pixels
+  for (int u = 0; u < 7; ++u)
+    EXPECT_NEAR(frame.colour.at<cv::Vec3b>(3, u)[0], 20 * u + 5, 1) << "pixel " << u;
+
+  // A colour camera that states its size checks the images against it.
+  ASSERT_TRUE(ColourCamera::parse("10,10,7.5,5.5,0,0,0", &options.colour_camera.emplace(), &why));
+  options.colour_camera->camera.width = 20;
+  options.colour_camera->camera.height = 12;
+  const auto strict = open_or_fail(dir, options);
+  ASSERT_TRUE(strict);
+  EXPECT_FALSE(strict->load(1, &frame, &why));
+  EXPECT_NAMES_FILE(why, "frame-000001.color.png");
+}
+
 TEST(SevenScenes, WithoutIntrinsicsFileUsesPublishedValues) {
   const fs::path dir = write_small_sequence("no_intrinsics");
   fs::remove(dir / "camera-intrinsics.txt");
@@ -273,7 +303,7 @@ TEST(SevenScenes, MissingFilesAreNamed) {
   EXPECT_NAMES_FILE(open_error(dir), "frame-000002.pose.txt");
 
   dir = test::fresh_temp_dir("empty");
-  EXPECT_NAMES_FILE(open_error(dir, DatasetOptions{"7scenes", {}, {}}), dir.string());
+  EXPECT_NAMES_FILE(open_error(dir, DatasetOptions{"7scenes", {}, {}, {}}), dir.string());
 }
 
 TEST(SevenScenes, UnreadableAndMismatchedImagesAreNamed) {

@@ -12,6 +12,7 @@
 
 #include <opencv2/core/mat.hpp>
 
+#include "fslam/core/geometry/colour_camera.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/geometry/rgbd_frame.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
@@ -44,6 +45,10 @@ struct DatasetOptions {
   FrameSelection frames;
   // Wins over the dataset's own intrinsics; width/height 0 means "the images' size".
   std::optional<PinholeCamera> intrinsics;
+  // The colour sensor, when colour is not registered to depth: load() then resamples each
+  // colour image onto the depth pixels (register_colour_to_depth), and colour images may have
+  // their own size. Unset: colour and depth share camera().
+  std::optional<ColourCamera> colour_camera;
 };
 
 // One opened sequence: an index validated once at opening, frames read from disk on demand.
@@ -59,8 +64,8 @@ class Dataset {
   virtual std::string camera_source() const = 0;
   virtual double depth_scale() const = 0;  // raw depth units per metre
 
-  // Frame `index` (0 .. size()-1 of the selection): colour, depth in metres, camera, id,
-  // timestamp and ground truth when known. Fails naming the file when an image is unreadable,
+  // Frame `index` (0 .. size()-1 of the selection): colour (registered to depth when a colour
+  // camera was given), depth in metres, camera, id, timestamp and ground truth when known. Fails naming the file when an image is unreadable,
   // not 16-bit single-channel depth, or not the camera's size. Safe to call from many threads.
   virtual bool load(std::size_t index, RgbdFrame* frame, std::string* why) const = 0;
 

@@ -12,6 +12,7 @@
 #include <Eigen/Geometry>
 
 #include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/geometry/colour_camera.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 
 namespace fslam::core {
@@ -34,6 +35,7 @@ struct FrameIndex {
   std::string camera_source;        // where `camera` came from (a file, or a preset), for messages
   double depth_scale = 1000.0;      // raw depth units per metre
   std::vector<FrameRecord> frames;  // the selected frames, in order
+  std::optional<ColourCamera> colour_camera;  // DatasetOptions::colour_camera
 };
 
 // Applies options.intrinsics, sizes the camera from the first frame's depth image (checking a

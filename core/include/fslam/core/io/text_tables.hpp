@@ -33,4 +33,8 @@ bool read_matrix_file(const std::string& path, int rows, int cols, Eigen::Matrix
 // `text` as a double, the whole of it; false for anything else.
 bool parse_double(const std::string& text, double* value);
 
+// Numbers separated by commas and/or spaces ("585,585,320,240"), as command-line values give
+// them; every field must be a finite number. Empty text gives no numbers.
+bool parse_number_list(const std::string& text, std::vector<double>* values, std::string* why);
+
 }  // namespace fslam::core
