@@ -89,6 +89,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   core::InstanceMatchConfig match;
   match.predicted_none = -1;  // pixels no instance claims: misses
   std::vector<double> click_iou;
+  nlohmann::json click_log = nlohmann::json::array();  // per click: where, and how it went
   std::size_t views = 0, failed_clicks = 0;
   for (std::size_t i = static_cast<std::size_t>(args.offset); i < dataset->size();
        i += static_cast<std::size_t>(args.every)) {
@@ -127,9 +128,16 @@ int run_segment_eval(const SegmentEvalArgs& args) {
           !core::render_selection(*rasterizer, map, selected, view, 0.5f, &mask, &why)) {
         ++failed_clicks;  // scored as IoU 0: the click found nothing
         click_iou.push_back(0.0);
+        click_log.push_back({{"frame", i}, {"id", id}, {"u", at.x}, {"v", at.y}, {"iou", 0.0}});
         continue;
       }
       click_iou.push_back(std::max(0.0, core::mask_iou(mask, truth, id)));
+      // Precision and recall of the mask tell over-growth from under-growth.
+      const double in_mask = cv::countNonZero(mask), in_object = cv::countNonZero(object);
+      const double both = cv::countNonZero(mask & object);
+      click_log.push_back({{"frame", i}, {"id", id}, {"u", at.x}, {"v", at.y}, {"iou", click_iou.back()},
+                           {"precision", in_mask > 0 ? both / in_mask : 0.0},
+                           {"recall", in_object > 0 ? both / in_object : 0.0}});
     }
     if (!args.out.empty() && static_cast<int>(views) < args.overlays) {
       core::RenderResult r;
@@ -170,7 +178,8 @@ int run_segment_eval(const SegmentEvalArgs& args) {
     nlohmann::json per;
     for (const auto& [id, iou] : score.iou) per[std::to_string(id)] = iou;
     j["promptless"]["iou_per_instance"] = per;
-    j["one_click"] = {{"mean_iou", click_mean}, {"clicks", click_iou.size()}, {"failed", failed_clicks}};
+    j["one_click"] = {{"mean_iou", click_mean}, {"clicks", click_iou.size()}, {"failed", failed_clicks},
+                      {"per_click", click_log}};
     std::ofstream(fs::path(args.out) / "segmentation.json") << j.dump(2) << "\n";
     std::printf("wrote %s/segmentation.json and overlays\n", args.out.c_str());
   }
@@ -197,6 +206,16 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
       ->capture_default_str();
   app->add_option("--prompt-threshold", args->prompt.graph.feature_threshold,
                   "Prompts: RMS latent difference to the prompt")
+      ->capture_default_str();
+  app->add_option("--prompt-adaptive", args->prompt.adaptive_threshold,
+                  "Prompts: pick each prompt's threshold in [min, max] (else --prompt-threshold)")
+      ->capture_default_str();
+  app->add_option("--prompt-min-threshold", args->prompt.min_threshold, "Prompts: adaptive range, tightest threshold")
+      ->capture_default_str();
+  app->add_option("--prompt-max-threshold", args->prompt.max_threshold, "Prompts: adaptive range, loosest threshold")
+      ->capture_default_str();
+  app->add_option("--prompt-min-jump", args->prompt.min_jump,
+                  "Prompts: growth ratio between thresholds that marks a leak")
       ->capture_default_str();
   app->add_option("--min-instance", args->promptless.min_instance_gaussians,
                   "Promptless: smaller regions merge into a neighbour")

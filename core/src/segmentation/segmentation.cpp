@@ -221,15 +221,71 @@ bool prompt_at(const FeatureSpace& space, const PromptView& pv, const RenderView
 // Seeds near `point` that are alike the prompt; the nearest alike one within twice the neighbour
 // radius when none is within seed_radius.
 std::vector<int> seeds_at(const FeatureSpace& space, const PromptConfig& config,
-                          const Eigen::Vector3f& point, const float* zp) {
+                          const Eigen::Vector3f& point, const float* zp, float threshold) {
   std::vector<int> seeds;
   for (int i : space.within(point, config.seed_radius))
-    if (space.distance(space.z(i), zp) < config.graph.feature_threshold) seeds.push_back(i);
+    if (space.distance(space.z(i), zp) < threshold) seeds.push_back(i);
   if (!seeds.empty()) return seeds;
   for (int i : space.within(point, 2.0f * config.graph.max_neighbour_distance)) {
-    if (space.distance(space.z(i), zp) < config.graph.feature_threshold) return {i};
+    if (space.distance(space.z(i), zp) < threshold) return {i};
   }
   return seeds;
+}
+
+// The thresholds a prompt is grown at: graph.feature_threshold alone, or the adaptive range.
+std::vector<float> prompt_thresholds(const PromptConfig& config) {
+  if (!config.adaptive_threshold) return {config.graph.feature_threshold};
+  std::vector<float> out;
+  for (int k = 0;; ++k) {
+    const float t = config.min_threshold + static_cast<float>(k) * config.threshold_step;
+    if (t > config.max_threshold + 1e-4f) break;
+    out.push_back(t);
+  }
+  return out;
+}
+
+// Paper sec. "Novel-View Open-Set Segmentation": a prompt selects the object in 3D; the
+// threshold that bounds it is chosen per prompt, docs/segmentation.md says how.
+// Index of the threshold to keep given the region's Gaussian count at each: the one before the
+// largest relative jump of at least min_jump (the region crossed into a neighbouring surface
+// there), else the loosest. +1 keeps an empty region from making every jump infinite.
+std::size_t pick_threshold(const std::vector<std::size_t>& counts, float min_jump) {
+  std::size_t pick = counts.size() - 1;
+  double best = 0.0;
+  for (std::size_t k = 0; k + 1 < counts.size(); ++k) {
+    if (counts[k] == 0) continue;
+    const double ratio = (static_cast<double>(counts[k + 1]) + 1.0) / (static_cast<double>(counts[k]) + 1.0);
+    if (ratio >= min_jump && ratio > best) {
+      best = ratio;
+      pick = k;
+    }
+  }
+  return pick;
+}
+
+// Grows one prompt's region at each of the prompt's thresholds (seeds_for(threshold) gives its
+// seeds) and adds the one pick_threshold keeps to `selected`. False when no threshold has seeds.
+template <typename SeedsFor>
+bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
+                   const PromptConfig& config, const SeedsFor& seeds_for, const float* zp,
+                   std::vector<std::uint8_t>* selected) {
+  const std::vector<float> thresholds = prompt_thresholds(config);
+  std::vector<std::vector<std::uint8_t>> regions(thresholds.size());
+  std::vector<std::size_t> counts(thresholds.size(), 0);
+  bool any = false;
+  for (std::size_t k = 0; k < thresholds.size(); ++k) {
+    regions[k].assign(selected->size(), 0);
+    const std::vector<int> seeds = seeds_for(thresholds[k]);
+    if (seeds.empty()) continue;
+    any = true;
+    grow(space, neighbours, seeds, zp, thresholds[k], &regions[k]);
+    counts[k] = static_cast<std::size_t>(std::count(regions[k].begin(), regions[k].end(), 1));
+  }
+  if (!any) return false;
+  const std::vector<std::uint8_t>& region = regions[pick_threshold(counts, config.min_jump)];
+  for (std::size_t i = 0; i < region.size(); ++i)
+    if (region[i]) (*selected)[i] = 1;
+  return true;
 }
 
 }  // namespace
@@ -246,6 +302,13 @@ bool PromptlessConfig::is_valid(std::string* why) const { return graph.is_valid(
 
 bool PromptConfig::is_valid(std::string* why) const {
   if (!(seed_radius > 0)) return fail(why, "segmentation: seed_radius must be > 0");
+  if (adaptive_threshold) {
+    if (!(min_threshold > 0 && max_threshold >= min_threshold)) {
+      return fail(why, "segmentation: prompt thresholds need 0 < min_threshold <= max_threshold");
+    }
+    if (!(threshold_step > 0)) return fail(why, "segmentation: threshold_step must be > 0");
+    if (!(min_jump > 1)) return fail(why, "segmentation: min_jump must be > 1");
+  }
   return graph.is_valid(why);
 }
 
@@ -455,12 +518,11 @@ bool PromptSelector::select_by_points(const Rasterizer& rasterizer, const Render
       return fail(why, "point prompt (" + std::to_string(u) + ", " + std::to_string(v) +
                            ") hits no surface of the map in this view");
     }
-    const std::vector<int> seeds = seeds_at(space, config, point, zp.data());
-    if (seeds.empty()) {
+    const auto seeds_for = [&](float threshold) { return seeds_at(space, config, point, zp.data(), threshold); };
+    if (!select_region(space, neighbours, config, seeds_for, zp.data(), selected)) {
       return fail(why, "point prompt (" + std::to_string(u) + ", " + std::to_string(v) +
                            "): no Gaussian near the prompted surface has its features");
     }
-    grow(space, neighbours, seeds, zp.data(), config.graph.feature_threshold, selected);
   }
   return true;
 }
@@ -496,19 +558,25 @@ bool PromptSelector::select_by_box(const Rasterizer& rasterizer, const RenderVie
     median[static_cast<std::size_t>(c)] = column[column.size() / 2];
   }
   selected->assign(map.size(), 0);
-  std::vector<int> seeds;
+  std::vector<Eigen::Vector3f> grid;  // surface points on a 3x3 grid over the inner half
   for (int gy = -1; gy <= 1; ++gy)
     for (int gx = -1; gx <= 1; ++gx) {
       Eigen::Vector3f point;
       std::vector<float> zp;
-      if (!prompt_at(space, pv, view, static_cast<int>(std::lround(cu + gx * hu)),
-                     static_cast<int>(std::lround(cv + gy * hv)), &point, &zp)) {
-        continue;
+      if (prompt_at(space, pv, view, static_cast<int>(std::lround(cu + gx * hu)),
+                    static_cast<int>(std::lround(cv + gy * hv)), &point, &zp)) {
+        grid.push_back(point);
       }
-      for (int s : seeds_at(space, config, point, median.data())) seeds.push_back(s);
     }
-  if (seeds.empty()) return fail(why, "box prompt: no Gaussian inside the box has the box's features");
-  grow(space, neighbours, seeds, median.data(), config.graph.feature_threshold, selected);
+  const auto seeds_for = [&](float threshold) {
+    std::vector<int> seeds;
+    for (const Eigen::Vector3f& point : grid)
+      for (int s : seeds_at(space, config, point, median.data(), threshold)) seeds.push_back(s);
+    return seeds;
+  };
+  if (!select_region(space, neighbours, config, seeds_for, median.data(), selected)) {
+    return fail(why, "box prompt: no Gaussian inside the box has the box's features");
+  }
   return true;
 }
 

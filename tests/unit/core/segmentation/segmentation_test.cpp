@@ -116,6 +116,65 @@ TEST(Segmentation, ABoxPromptSelectsThePanelInside) {
   EXPECT_LT(mask_iou(mask, s.truth(), 1), 0.01);
 }
 
+// A narrow strip touching a wide panel whose latent is close to the strip's (RMS difference
+// about 0.8 after standardising, inside the prompts' threshold range), and a third panel far in
+// space and latent that sets the spread. A fixed loose threshold floods the wide panel; the
+// per-prompt threshold stops before the step where the region jumps from the strip to both.
+TEST(Segmentation, APromptStopsBeforeTheThresholdWhereItsRegionJumps) {
+  GaussianMap map;
+  map.sh_degree = 0;
+  map.feature_dim = test::kPanelFeatureDim;
+  std::mt19937 rng(3);
+  std::vector<float> wide(test::kPanelFeatureDim, 0.0f), strip(wide), other(wide);
+  strip[0] = 1.0f;
+  other[2] = 3.0f;
+  test::add_panel(&map, -0.5f, 0.0f, wide, &rng);   // 3000 Gaussians, u in [29.5, 79.5)
+  test::add_panel(&map, 0.0f, 0.1f, strip, &rng);   // 600, u in [79.5, 89.5)
+  test::add_panel(&map, 0.6f, 0.75f, other, &rng);  // 900, far
+  const std::size_t wide_n = 3000, strip_n = 600;
+  ASSERT_EQ(map.size(), wide_n + strip_n + 900);
+  RenderView view;
+  view.camera = test::kPanelCamera;
+  const auto rasterizer = make_cpu_rasterizer();
+  const auto count = [&](const std::vector<std::uint8_t>& selected, std::size_t from, std::size_t to) {
+    return static_cast<std::size_t>(std::count(selected.begin() + static_cast<long>(from),
+                                                selected.begin() + static_cast<long>(to), 1));
+  };
+  std::string why;
+  std::vector<std::uint8_t> selected;
+
+  PromptConfig fixed;  // the premise: at the loosest threshold the strip's region floods the panel
+  fixed.adaptive_threshold = false;
+  fixed.graph.feature_threshold = fixed.max_threshold;
+  ASSERT_TRUE(select_by_points(*rasterizer, map, view, {{85.0, 60.0}}, fixed, &selected, &why)) << why;
+  EXPECT_GT(count(selected, 0, wide_n), wide_n / 2);
+
+  PromptConfig adaptive;
+  ASSERT_TRUE(adaptive.adaptive_threshold);
+  ASSERT_TRUE(select_by_points(*rasterizer, map, view, {{85.0, 60.0}}, adaptive, &selected, &why)) << why;
+  EXPECT_GT(count(selected, wide_n, wide_n + strip_n), strip_n * 95 / 100);
+  EXPECT_EQ(count(selected, 0, wide_n), 0u);
+  EXPECT_EQ(count(selected, wide_n + strip_n, map.size()), 0u);
+
+  // Without a jump (one uniform panel) the loosest threshold stands: the whole panel.
+  ASSERT_TRUE(select_by_points(*rasterizer, map, view, {{50.0, 60.0}}, adaptive, &selected, &why)) << why;
+  EXPECT_GT(count(selected, 0, wide_n), wide_n * 95 / 100);
+}
+
+TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
+  PromptConfig config;
+  std::string why;
+  EXPECT_TRUE(config.is_valid(&why)) << why;
+  config.max_threshold = 0.5f * config.min_threshold;
+  EXPECT_FALSE(config.is_valid(&why));
+  config.adaptive_threshold = false;  // the range is not used then
+  EXPECT_TRUE(config.is_valid(&why)) << why;
+  config.adaptive_threshold = true;
+  config.max_threshold = 1.0f;
+  config.min_jump = 1.0f;
+  EXPECT_FALSE(config.is_valid(&why));
+}
+
 TEST(Segmentation, AMapWithoutFeaturesIsAClearError) {
   Scene s;
   s.map.feature_dim = 0;

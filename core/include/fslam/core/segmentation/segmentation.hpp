@@ -68,6 +68,17 @@ struct PromptConfig {
     return g;
   }
   float seed_radius = 0.03f;  // metres around the prompted surface point: the region's seeds
+  // Per-prompt threshold: the region is grown at every threshold from min_threshold to
+  // max_threshold (step threshold_step) and kept at the last one before the step where its
+  // Gaussian count grows the most, by at least min_jump times: there it has leaked across a
+  // boundary into a neighbouring surface. Without such a step the loosest threshold stands.
+  // adaptive_threshold = false grows at graph.feature_threshold only. Chosen on the synthetic
+  // room of seed 1 (docs/segmentation.md).
+  bool adaptive_threshold = true;
+  float min_threshold = 0.6f;
+  float max_threshold = 1.0f;
+  float threshold_step = 0.05f;
+  float min_jump = 2.0f;  // ratio of Gaussian counts between neighbouring thresholds
   bool is_valid(std::string* why = nullptr) const;
 };
 
