@@ -63,9 +63,9 @@ struct MapperConfig {
   float initial_thickness = 0.1f;     // normal sigma = thickness * in-plane sigma
   // Refinement round per keyframe: a cap on gradient steps (the paper's trade-off between
   // photometric convergence and drift), sampling the newest keyframe with this probability
-  // and otherwise any keyframe uniformly.
-  int iterations_per_keyframe = 20;
-  double newest_keyframe_probability = 0.5;
+  // and otherwise any keyframe uniformly (chosen on redkitchen 0-299, docs/mapping.md).
+  int iterations_per_keyframe = 30;
+  double newest_keyframe_probability = 0.2;
   // Eq. pruning_set percentiles: tracking keyframes 10 %, mapping keyframes 30 %. A keyframe is a
   // mapping keyframe when it moved at least this far from the last mapping keyframe.
   double prune_percentile_tracking = 0.10;
