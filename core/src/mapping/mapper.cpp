@@ -370,10 +370,15 @@ bool Mapper::optimise(int iterations, std::string* why) {
 bool Mapper::refine(int steps, std::string* why, const std::function<void(int, int)>& progress) {
   if (keyframes_.empty() || map_.empty()) return true;
   recompute_filter_3d(0);
+  const GaussianLearningRates& lr = config_.learning_rates;
   for (int it = 0; it < steps; ++it) {
+    // 3DGS's position schedule: log-linear decay to 1/100 of the rate over the refinement.
+    const float t = steps > 1 ? static_cast<float>(it) / static_cast<float>(steps - 1) : 0.0f;
+    adam_.set_learning_rate(kAdamMeans, lr.means * std::pow(0.01f, t));
     if (!step(keyframes_[sample_keyframe(true)], nullptr, why)) return false;
     if (progress && ((it + 1) % 10 == 0 || it + 1 == steps)) progress(it + 1, steps);
   }
+  adam_.set_learning_rate(kAdamMeans, lr.means);  // the online rate again after refinement
   publish();
   return true;
 }
