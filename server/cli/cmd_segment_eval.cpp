@@ -135,9 +135,21 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       // Precision and recall of the mask tell over-growth from under-growth.
       const double in_mask = cv::countNonZero(mask), in_object = cv::countNonZero(object);
       const double both = cv::countNonZero(mask & object);
+      // The object the mask spills onto most, and that share of the mask: where a leak went.
+      std::map<int, int> spill;
+      for (int v = 0; v < truth.rows; ++v)
+        for (int u = 0; u < truth.cols; ++u) {
+          const int t = truth.at<std::uint16_t>(v, u);
+          if (mask.at<std::uint8_t>(v, u) && t != id) ++spill[t];
+        }
+      std::pair<int, int> most{-1, 0};
+      for (const auto& [t, n] : spill)
+        if (n > most.second) most = {t, n};
       click_log.push_back({{"frame", i}, {"id", id}, {"u", at.x}, {"v", at.y}, {"iou", click_iou.back()},
                            {"precision", in_mask > 0 ? both / in_mask : 0.0},
-                           {"recall", in_object > 0 ? both / in_object : 0.0}});
+                           {"recall", in_object > 0 ? both / in_object : 0.0},
+                           {"spill_id", most.first},
+                           {"spill_share", in_mask > 0 ? most.second / in_mask : 0.0}});
     }
     if (!args.out.empty() && static_cast<int>(views) < args.overlays) {
       core::RenderResult r;
@@ -216,6 +228,21 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
       ->capture_default_str();
   app->add_option("--prompt-min-jump", args->prompt.min_jump,
                   "Prompts: growth ratio between thresholds that marks a leak")
+      ->capture_default_str();
+  app->add_option("--prompt-smooth", args->prompt.smooth_growth,
+                  "Prompts: growth along one smooth surface is no leak")
+      ->capture_default_str();
+  app->add_option("--prompt-smooth-angle", args->prompt.smooth_max_angle_deg,
+                  "Prompts: degrees between normals on one smooth surface")
+      ->capture_default_str();
+  app->add_option("--prompt-smooth-offset", args->prompt.smooth_max_offset,
+                  "Prompts: metres off the tangent plane on one smooth surface")
+      ->capture_default_str();
+  app->add_option("--prompt-flat-ratio", args->prompt.flat_ratio,
+                  "Prompts: smallest / middle scale below which a Gaussian has a normal")
+      ->capture_default_str();
+  app->add_option("--prompt-bend-ratio", args->prompt.bend_ratio,
+                  "Prompts: across a bend or step a Gaussian joins within this x the threshold")
       ->capture_default_str();
   app->add_option("--min-instance", args->promptless.min_instance_gaussians,
                   "Promptless: smaller regions merge into a neighbour")

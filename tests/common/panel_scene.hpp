@@ -17,14 +17,15 @@ namespace fslam::test {
 constexpr int kPanelFeatureDim = 8;
 inline const core::PinholeCamera kPanelCamera{200.0, 200.0, 79.5, 59.5, 160, 120};  // looks down +z
 
-// Panel of Gaussians x in [x0, x1), y in [-0.3, 0.3), 1 cm apart, latent `base` plus noise of
-// 0.05 per channel (no latent when the map has feature_dim 0).
+// Panel of Gaussians x in [x0, x1), y in [-0.3, 0.3), 1 cm apart, on the plane z (metres),
+// flat discs facing the camera, latent `base` plus noise of 0.05 per channel (no latent when the
+// map has feature_dim 0).
 inline void add_panel(core::GaussianMap* map, float x0, float x1, const std::vector<float>& base,
-                      std::mt19937* rng) {
+                      std::mt19937* rng, float z = 2.0f) {
   std::normal_distribution<float> noise(0.0f, 0.05f);
   for (float x = x0; x < x1 - 1e-6f; x += 0.01f)
     for (float y = -0.3f; y < 0.3f - 1e-6f; y += 0.01f) {
-      const float mean[3] = {x + 0.005f, y + 0.005f, 2.0f};
+      const float mean[3] = {x + 0.005f, y + 0.005f, z};
       const float rotation[4] = {1, 0, 0, 0};
       const float log_scale[3] = {std::log(0.007f), std::log(0.007f), std::log(0.001f)};
       const float sh[3] = {0.5f, 0.5f, 0.5f};

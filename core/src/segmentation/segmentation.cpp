@@ -11,6 +11,7 @@
 #include <flann/flann.hpp>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/math/splat_math.hpp"
 
 namespace fslam::core {
 namespace {
@@ -154,36 +155,47 @@ GaussianMap geometry_copy(const GaussianMap& map, int channels) {
 // Grows the object from `seeds` over the spatial neighbour graph, best match first: a Gaussian
 // joins while its latent is within `threshold` of the object's running mean latent, which
 // starts at the prompt's `zp`. Comparing with the mean rather than with the neighbour keeps the
-// region from creeping across a boundary through the blended latents there.
+// region from creeping across a boundary through the blended latents there. A Gaussian reached
+// only across a bend or step (not a smooth pair, `smooth` [N] lists them per Gaussian) must be
+// within bend_ratio x threshold: the surface's shape marks object boundaries the latents blur.
 void grow(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
-          const std::vector<int>& seeds, const float* zp, float threshold,
-          std::vector<std::uint8_t>* selected) {
+          const std::vector<std::vector<int>>& smooth, float bend_ratio, const std::vector<int>& seeds,
+          const float* zp, float threshold, std::vector<std::uint8_t>* selected) {
   const int dim = space.dim();
   std::vector<double> sum(zp, zp + dim);
   double count = 1.0;  // the prompt counts as one member
   std::vector<float> mean(zp, zp + dim);
-  using Entry = std::pair<float, int>;  // (distance to the mean when queued, Gaussian)
+  // (distance to the mean when queued, scaled by 1 / bend_ratio across a bend; Gaussian; across a bend)
+  using Entry = std::tuple<float, int, bool>;
   std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> queue;
-  std::vector<std::uint8_t> queued(selected->size(), 0);
+  enum : std::uint8_t { kNone = 0, kAcrossBend = 1, kSmooth = 2 };
+  std::vector<std::uint8_t> queued(selected->size(), kNone);
   for (int s : seeds) {
-    queue.push({space.distance(space.z(s), mean.data()), s});
-    queued[static_cast<std::size_t>(s)] = 1;
+    queue.push({space.distance(space.z(s), mean.data()), s, false});
+    queued[static_cast<std::size_t>(s)] = kSmooth;
   }
+  std::vector<std::uint8_t> in(selected->size(), 0);
   while (!queue.empty()) {
-    const int i = queue.top().second;
+    const auto [key, i, bend] = queue.top();
     queue.pop();
+    if (in[static_cast<std::size_t>(i)]) continue;
     const float* zi = space.z(i);
-    if (space.distance(zi, mean.data()) >= threshold) continue;
+    if (space.distance(zi, mean.data()) >= (bend ? bend_ratio * threshold : threshold)) continue;
+    in[static_cast<std::size_t>(i)] = 1;
     (*selected)[static_cast<std::size_t>(i)] = 1;
     count += 1.0;
     for (int c = 0; c < dim; ++c) {
       sum[c] += zi[c];
       mean[c] = static_cast<float>(sum[c] / count);
     }
+    const std::vector<int>& on_surface = smooth[static_cast<std::size_t>(i)];
     for (int j : neighbours[static_cast<std::size_t>(i)]) {
-      if (queued[static_cast<std::size_t>(j)]) continue;
-      queued[static_cast<std::size_t>(j)] = 1;
-      queue.push({space.distance(space.z(j), mean.data()), j});
+      const bool across = bend_ratio < 1.0f && std::find(on_surface.begin(), on_surface.end(), j) == on_surface.end();
+      std::uint8_t& q = queued[static_cast<std::size_t>(j)];
+      if (q == kSmooth || (q == kAcrossBend && across)) continue;  // queued already, as easily
+      q = across ? kAcrossBend : kSmooth;
+      const float d = space.distance(space.z(j), mean.data());
+      queue.push({across ? d / bend_ratio : d, j, across});
     }
   }
 }
@@ -246,15 +258,19 @@ std::vector<float> prompt_thresholds(const PromptConfig& config) {
 
 // Paper sec. "Novel-View Open-Set Segmentation": a prompt selects the object in 3D; the
 // threshold that bounds it is chosen per prompt, docs/segmentation.md says how.
-// Index of the threshold to keep given the region's Gaussian count at each: the one before the
-// largest relative jump of at least min_jump (the region crossed into a neighbouring surface
-// there), else the loosest. +1 keeps an empty region from making every jump infinite.
-std::size_t pick_threshold(const std::vector<std::size_t>& counts, float min_jump) {
+// Index of the threshold to keep given the region's Gaussian count at each (counts[k]) and the
+// Gaussians the step from k to k + 1 adds off the region's surface (leaked[k]): the one before
+// the largest relative jump (counts[k] + leaked[k]) / counts[k] of at least min_jump (the region
+// crossed into a neighbouring surface there), else the loosest. +1 keeps an empty region from
+// making every jump infinite. leaked[k] = counts[k + 1] - counts[k] judges every added Gaussian.
+std::size_t pick_threshold(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
+                           float min_jump) {
   std::size_t pick = counts.size() - 1;
   double best = 0.0;
   for (std::size_t k = 0; k + 1 < counts.size(); ++k) {
     if (counts[k] == 0) continue;
-    const double ratio = (static_cast<double>(counts[k + 1]) + 1.0) / (static_cast<double>(counts[k]) + 1.0);
+    const double before = static_cast<double>(counts[k]) + 1.0;
+    const double ratio = (before + static_cast<double>(leaked[k])) / before;
     if (ratio >= min_jump && ratio > best) {
       best = ratio;
       pick = k;
@@ -263,26 +279,110 @@ std::size_t pick_threshold(const std::vector<std::size_t>& counts, float min_jum
   return pick;
 }
 
+// Whether growth from Gaussian i to its neighbour j stays on one smooth surface: both flat
+// (their normal is defined), normals within the angle, each mean near the other's tangent plane.
+// normals: [N, 3] world frame, zero where the Gaussian is not flat.
+bool smooth_pair(const GaussianMap& map, const std::vector<float>& normals, float min_cos, float max_offset,
+                 int i, int j) {
+  const float* ni = &normals[static_cast<std::size_t>(i) * 3];
+  const float* nj = &normals[static_cast<std::size_t>(j) * 3];
+  const float* xi = &map.means[static_cast<std::size_t>(i) * 3];
+  const float* xj = &map.means[static_cast<std::size_t>(j) * 3];
+  float dot = 0, off_i = 0, off_j = 0;
+  for (int a = 0; a < 3; ++a) {
+    dot += ni[a] * nj[a];
+    off_i += ni[a] * (xj[a] - xi[a]);
+    off_j += nj[a] * (xi[a] - xj[a]);
+  }
+  return std::abs(dot) >= min_cos && std::abs(off_i) <= max_offset && std::abs(off_j) <= max_offset;
+}
+
+// Per Gaussian, its unit normal (the axis of its smallest scale; [N, 3] world frame), or zero
+// where the smallest scale exceeds flat_ratio x the middle one: no surface direction to trust.
+std::vector<float> gaussian_normals(const GaussianMap& map, float flat_ratio) {
+  std::vector<float> normals(map.size() * 3, 0.0f);
+  for (std::size_t i = 0; i < map.size(); ++i) {
+    const float* ls = &map.log_scales[i * 3];
+    int order[3] = {0, 1, 2};
+    std::sort(order, order + 3, [&](int a, int b) { return ls[a] < ls[b]; });
+    if (std::exp(ls[order[0]] - ls[order[1]]) > flat_ratio) continue;
+    float R[9];
+    math::quat_to_rotmat(&map.rotations[i * 4], R);  // row-major, columns are the Gaussian's axes
+    for (int a = 0; a < 3; ++a) normals[i * 3 + a] = R[a * 3 + order[0]];
+  }
+  return normals;
+}
+
+// Per Gaussian, those of its neighbours that lie on one smooth surface with it (smooth_pair).
+std::vector<std::vector<int>> smooth_neighbours(const GaussianMap& map, const std::vector<std::vector<int>>& neighbours,
+                                                const PromptConfig& config) {
+  std::vector<std::vector<int>> out(neighbours.size());
+  if (!config.smooth_growth) return out;
+  const std::vector<float> normals = gaussian_normals(map, config.flat_ratio);
+  const float min_cos = std::cos(config.smooth_max_angle_deg * static_cast<float>(M_PI) / 180.0f);
+  for (std::size_t i = 0; i < neighbours.size(); ++i)
+    for (int j : neighbours[i])
+      if (smooth_pair(map, normals, min_cos, config.smooth_max_offset, static_cast<int>(i), j)) out[i].push_back(j);
+  return out;
+}
+
+// How many Gaussians of `next` outside `region` are not on the seeds' smooth surface: not reached
+// from `seeds` over smooth pairs within `next`. What a step added off the prompted surface; a
+// surface reached through a few leaked boundary Gaussians is off it too.
+std::size_t added_off_surface(const std::vector<std::vector<int>>& smooth, const std::vector<int>& seeds,
+                              const std::vector<std::uint8_t>& region, const std::vector<std::uint8_t>& next) {
+  std::vector<std::uint8_t> reached(next.size(), 0);
+  std::deque<int> queue;
+  for (int s : seeds)
+    if (next[static_cast<std::size_t>(s)] && !reached[static_cast<std::size_t>(s)]) {
+      reached[static_cast<std::size_t>(s)] = 1;
+      queue.push_back(s);
+    }
+  while (!queue.empty()) {
+    const int i = queue.front();
+    queue.pop_front();
+    for (int j : smooth[static_cast<std::size_t>(i)]) {
+      if (reached[static_cast<std::size_t>(j)] || !next[static_cast<std::size_t>(j)]) continue;
+      reached[static_cast<std::size_t>(j)] = 1;
+      queue.push_back(j);
+    }
+  }
+  std::size_t off = 0;
+  for (std::size_t i = 0; i < next.size(); ++i)
+    if (next[i] && !region[i] && !reached[i]) ++off;
+  return off;
+}
+
 // Grows one prompt's region at each of the prompt's thresholds (seeds_for(threshold) gives its
 // seeds) and adds the one pick_threshold keeps to `selected`. False when no threshold has seeds.
 template <typename SeedsFor>
 bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
-                   const PromptConfig& config, const SeedsFor& seeds_for, const float* zp,
-                   std::vector<std::uint8_t>* selected) {
+                   const std::vector<std::vector<int>>& smooth, const PromptConfig& config,
+                   const SeedsFor& seeds_for, const float* zp, std::vector<std::uint8_t>* selected) {
   const std::vector<float> thresholds = prompt_thresholds(config);
   std::vector<std::vector<std::uint8_t>> regions(thresholds.size());
+  std::vector<std::vector<int>> seeds(thresholds.size());
   std::vector<std::size_t> counts(thresholds.size(), 0);
   bool any = false;
   for (std::size_t k = 0; k < thresholds.size(); ++k) {
     regions[k].assign(selected->size(), 0);
-    const std::vector<int> seeds = seeds_for(thresholds[k]);
-    if (seeds.empty()) continue;
+    seeds[k] = seeds_for(thresholds[k]);
+    if (seeds[k].empty()) continue;
     any = true;
-    grow(space, neighbours, seeds, zp, thresholds[k], &regions[k]);
+    grow(space, neighbours, smooth, config.smooth_growth ? config.bend_ratio : 1.0f, seeds[k], zp, thresholds[k],
+         &regions[k]);
     counts[k] = static_cast<std::size_t>(std::count(regions[k].begin(), regions[k].end(), 1));
   }
   if (!any) return false;
-  const std::vector<std::uint8_t>& region = regions[pick_threshold(counts, config.min_jump)];
+  std::vector<std::size_t> leaked(thresholds.size(), 0);  // per step k -> k + 1
+  for (std::size_t k = 0; k + 1 < thresholds.size(); ++k) {
+    if (!config.smooth_growth) {
+      leaked[k] = counts[k + 1] > counts[k] ? counts[k + 1] - counts[k] : 0;
+    } else if (counts[k] > 0) {
+      leaked[k] = added_off_surface(smooth, seeds[k + 1], regions[k], regions[k + 1]);
+    }
+  }
+  const std::vector<std::uint8_t>& region = regions[pick_threshold(counts, leaked, config.min_jump)];
   for (std::size_t i = 0; i < region.size(); ++i)
     if (region[i]) (*selected)[i] = 1;
   return true;
@@ -308,6 +408,14 @@ bool PromptConfig::is_valid(std::string* why) const {
     }
     if (!(threshold_step > 0)) return fail(why, "segmentation: threshold_step must be > 0");
     if (!(min_jump > 1)) return fail(why, "segmentation: min_jump must be > 1");
+    if (smooth_growth) {
+      if (!(smooth_max_angle_deg > 0 && smooth_max_angle_deg < 90)) {
+        return fail(why, "segmentation: smooth_max_angle_deg must be in (0, 90)");
+      }
+      if (!(smooth_max_offset >= 0)) return fail(why, "segmentation: smooth_max_offset must be >= 0");
+      if (!(flat_ratio > 0 && flat_ratio <= 1)) return fail(why, "segmentation: flat_ratio must be in (0, 1]");
+      if (!(bend_ratio > 0 && bend_ratio <= 1)) return fail(why, "segmentation: bend_ratio must be in (0, 1]");
+    }
   }
   return graph.is_valid(why);
 }
@@ -485,15 +593,18 @@ bool render_selection(const Rasterizer& rasterizer, const GaussianMap& map,
 
 // The feature space and neighbour graph of one map, built once for all its prompts.
 struct PromptSelector::Graph {
-  Graph(const GaussianMap& map, const FeatureGraphConfig& config)
-      : space(map, config), neighbours(space.neighbours()) {}
+  Graph(const GaussianMap& map, const PromptConfig& config)
+      : space(map, config.graph),
+        neighbours(space.neighbours()),
+        smooth(smooth_neighbours(map, neighbours, config)) {}
   FeatureSpace space;
   std::vector<std::vector<int>> neighbours;
+  std::vector<std::vector<int>> smooth;  // the neighbours on one smooth surface with each
 };
 
 PromptSelector::PromptSelector(const GaussianMap& map, const PromptConfig& config)
     : map_(map), config_(config) {
-  if (config.is_valid(&error_) && check_features(map, &error_)) graph_ = std::make_unique<Graph>(map, config.graph);
+  if (config.is_valid(&error_) && check_features(map, &error_)) graph_ = std::make_unique<Graph>(map, config);
 }
 
 PromptSelector::~PromptSelector() = default;
@@ -519,7 +630,7 @@ bool PromptSelector::select_by_points(const Rasterizer& rasterizer, const Render
                            ") hits no surface of the map in this view");
     }
     const auto seeds_for = [&](float threshold) { return seeds_at(space, config, point, zp.data(), threshold); };
-    if (!select_region(space, neighbours, config, seeds_for, zp.data(), selected)) {
+    if (!select_region(space, neighbours, graph_->smooth, config, seeds_for, zp.data(), selected)) {
       return fail(why, "point prompt (" + std::to_string(u) + ", " + std::to_string(v) +
                            "): no Gaussian near the prompted surface has its features");
     }
@@ -574,7 +685,7 @@ bool PromptSelector::select_by_box(const Rasterizer& rasterizer, const RenderVie
       for (int s : seeds_at(space, config, point, median.data(), threshold)) seeds.push_back(s);
     return seeds;
   };
-  if (!select_region(space, neighbours, config, seeds_for, median.data(), selected)) {
+  if (!select_region(space, neighbours, graph_->smooth, config, seeds_for, median.data(), selected)) {
     return fail(why, "box prompt: no Gaussian inside the box has the box's features");
   }
   return true;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <algorithm>
 #include <map>
+#include <memory>
 #include <numeric>
 #include <random>
 
@@ -116,49 +117,108 @@ TEST(Segmentation, ABoxPromptSelectsThePanelInside) {
   EXPECT_LT(mask_iou(mask, s.truth(), 1), 0.01);
 }
 
-// A narrow strip touching a wide panel whose latent is close to the strip's (RMS difference
-// about 0.8 after standardising, inside the prompts' threshold range), and a third panel far in
-// space and latent that sets the spread. A fixed loose threshold floods the wide panel; the
-// per-prompt threshold stops before the step where the region jumps from the strip to both.
-TEST(Segmentation, APromptStopsBeforeTheThresholdWhereItsRegionJumps) {
-  GaussianMap map;
-  map.sh_degree = 0;
-  map.feature_dim = test::kPanelFeatureDim;
-  std::mt19937 rng(3);
-  std::vector<float> wide(test::kPanelFeatureDim, 0.0f), strip(wide), other(wide);
-  strip[0] = 1.0f;
-  other[2] = 3.0f;
-  test::add_panel(&map, -0.5f, 0.0f, wide, &rng);   // 3000 Gaussians, u in [29.5, 79.5)
-  test::add_panel(&map, 0.0f, 0.1f, strip, &rng);   // 600, u in [79.5, 89.5)
-  test::add_panel(&map, 0.6f, 0.75f, other, &rng);  // 900, far
-  const std::size_t wide_n = 3000, strip_n = 600;
-  ASSERT_EQ(map.size(), wide_n + strip_n + 900);
-  RenderView view;
-  view.camera = test::kPanelCamera;
-  const auto rasterizer = make_cpu_rasterizer();
-  const auto count = [&](const std::vector<std::uint8_t>& selected, std::size_t from, std::size_t to) {
+// A narrow strip beside a wide panel whose latent is close to the strip's (RMS difference about
+// 0.8 after standardising, inside the prompts' threshold range), and a third panel far in space
+// and latent that sets the spread. `strip_z`: the strip's plane; the panel's is z = 2 m.
+struct StripScene {
+  explicit StripScene(float strip_z) {
+    map.sh_degree = 0;
+    map.feature_dim = test::kPanelFeatureDim;
+    std::mt19937 rng(3);
+    std::vector<float> wide(test::kPanelFeatureDim, 0.0f), strip(wide), other(wide);
+    strip[0] = 1.0f;
+    other[2] = 3.0f;
+    test::add_panel(&map, -0.5f, 0.0f, wide, &rng);           // 3000 Gaussians, u in [29.5, 79.5)
+    test::add_panel(&map, 0.0f, 0.1f, strip, &rng, strip_z);  // 600, u from 79.5, about 10 px wide
+    test::add_panel(&map, 0.6f, 0.75f, other, &rng);          // 900, far
+    view.camera = test::kPanelCamera;
+  }
+  std::size_t count(const std::vector<std::uint8_t>& selected, std::size_t from, std::size_t to) const {
     return static_cast<std::size_t>(std::count(selected.begin() + static_cast<long>(from),
                                                 selected.begin() + static_cast<long>(to), 1));
-  };
+  }
+  GaussianMap map;
+  RenderView view;
+  std::unique_ptr<Rasterizer> rasterizer = make_cpu_rasterizer();
+  const std::size_t wide_n = 3000, strip_n = 600;
+};
+
+// The strip stands 2.5 cm off the panel, as a picture on a wall: a fixed loose threshold floods
+// the panel; the per-prompt threshold stops before the step where the region jumps from the
+// strip across that step to both.
+TEST(Segmentation, APromptStopsBeforeTheThresholdWhereItsRegionJumps) {
+  StripScene s(1.975f);
+  ASSERT_EQ(s.map.size(), s.wide_n + s.strip_n + 900);
   std::string why;
   std::vector<std::uint8_t> selected;
 
   PromptConfig fixed;  // the premise: at the loosest threshold the strip's region floods the panel
   fixed.adaptive_threshold = false;
   fixed.graph.feature_threshold = fixed.max_threshold;
-  ASSERT_TRUE(select_by_points(*rasterizer, map, view, {{85.0, 60.0}}, fixed, &selected, &why)) << why;
-  EXPECT_GT(count(selected, 0, wide_n), wide_n / 2);
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{85.0, 60.0}}, fixed, &selected, &why)) << why;
+  EXPECT_GT(s.count(selected, 0, s.wide_n), s.wide_n / 2);
 
   PromptConfig adaptive;
-  ASSERT_TRUE(adaptive.adaptive_threshold);
-  ASSERT_TRUE(select_by_points(*rasterizer, map, view, {{85.0, 60.0}}, adaptive, &selected, &why)) << why;
-  EXPECT_GT(count(selected, wide_n, wide_n + strip_n), strip_n * 95 / 100);
-  EXPECT_EQ(count(selected, 0, wide_n), 0u);
-  EXPECT_EQ(count(selected, wide_n + strip_n, map.size()), 0u);
+  ASSERT_TRUE(adaptive.adaptive_threshold && adaptive.smooth_growth);
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{85.0, 60.0}}, adaptive, &selected, &why)) << why;
+  EXPECT_GT(s.count(selected, s.wide_n, s.wide_n + s.strip_n), s.strip_n * 95 / 100);
+  EXPECT_LT(s.count(selected, 0, s.wide_n), s.wide_n / 100);  // at most a few along the step
+  EXPECT_EQ(s.count(selected, s.wide_n + s.strip_n, s.map.size()), 0u);
 
   // Without a jump (one uniform panel) the loosest threshold stands: the whole panel.
-  ASSERT_TRUE(select_by_points(*rasterizer, map, view, {{50.0, 60.0}}, adaptive, &selected, &why)) << why;
-  EXPECT_GT(count(selected, 0, wide_n), wide_n * 95 / 100);
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{50.0, 60.0}}, adaptive, &selected, &why)) << why;
+  EXPECT_GT(s.count(selected, 0, s.wide_n), s.wide_n * 95 / 100);
+}
+
+// The same strip flush with the panel, as a texture patch on a wall: the region's jump from the
+// strip to the panel stays on one flat surface, so it is no leak and the prompt selects the
+// whole surface; judging every added Gaussian (smooth_growth off) cuts it at the patch.
+TEST(Segmentation, GrowthAlongOneFlatSurfaceIsNoLeak) {
+  StripScene s(2.0f);
+  std::string why;
+  std::vector<std::uint8_t> selected;
+
+  PromptConfig count_all;
+  count_all.smooth_growth = false;
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{85.0, 60.0}}, count_all, &selected, &why)) << why;
+  EXPECT_EQ(s.count(selected, 0, s.wide_n), 0u);
+
+  PromptConfig smooth;
+  ASSERT_TRUE(smooth.smooth_growth);
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{85.0, 60.0}}, smooth, &selected, &why)) << why;
+  EXPECT_GT(s.count(selected, s.wide_n, s.wide_n + s.strip_n), s.strip_n * 95 / 100);
+  EXPECT_GT(s.count(selected, 0, s.wide_n), s.wide_n * 95 / 100);
+  EXPECT_EQ(s.count(selected, s.wide_n + s.strip_n, s.map.size()), 0u);  // apart in space and latent
+
+  // Round Gaussians have no normal to trust: every step between them counts as a possible leak.
+  for (std::size_t i = 0; i < s.map.size(); ++i) s.map.log_scales[i * 3 + 2] = s.map.log_scales[i * 3];
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{85.0, 60.0}}, smooth, &selected, &why)) << why;
+  EXPECT_LT(s.count(selected, 0, s.wide_n), s.wide_n / 100);
+}
+
+// Across the strip's 2.5 cm step a Gaussian must be within bend_ratio x the threshold: at a
+// threshold loose enough to flood the panel, the strip standing off it is selected alone, while
+// the same strip flush with the panel still grows over it (one flat surface: no bend to cross).
+TEST(Segmentation, GrowthAcrossAStepNeedsACloserLatent) {
+  PromptConfig config;
+  config.adaptive_threshold = false;
+  config.graph.feature_threshold = 0.85f;
+  config.bend_ratio = 1.0f;
+  std::string why;
+  std::vector<std::uint8_t> selected;
+  StripScene off(1.975f), flush(2.0f);
+  // The premise: ignoring the step, this threshold floods the panel from the strip.
+  ASSERT_TRUE(select_by_points(*off.rasterizer, off.map, off.view, {{85.0, 60.0}}, config, &selected, &why)) << why;
+  ASSERT_GT(off.count(selected, 0, off.wide_n), off.wide_n / 2);
+
+  config.bend_ratio = 0.75f;
+  ASSERT_TRUE(select_by_points(*off.rasterizer, off.map, off.view, {{85.0, 60.0}}, config, &selected, &why)) << why;
+  EXPECT_GT(off.count(selected, off.wide_n, off.wide_n + off.strip_n), off.strip_n * 95 / 100);
+  EXPECT_LT(off.count(selected, 0, off.wide_n), off.wide_n / 100);
+
+  ASSERT_TRUE(select_by_points(*flush.rasterizer, flush.map, flush.view, {{85.0, 60.0}}, config, &selected, &why))
+      << why;
+  EXPECT_GT(flush.count(selected, 0, flush.wide_n), flush.wide_n * 95 / 100);
 }
 
 TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
@@ -173,6 +233,17 @@ TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
   config.max_threshold = 1.0f;
   config.min_jump = 1.0f;
   EXPECT_FALSE(config.is_valid(&why));
+  config.min_jump = 2.0f;
+  config.smooth_max_angle_deg = 90.0f;  // every pair would be "smooth"
+  EXPECT_FALSE(config.is_valid(&why));
+  config.smooth_max_angle_deg = 20.0f;
+  config.flat_ratio = 0.0f;
+  EXPECT_FALSE(config.is_valid(&why));
+  config.flat_ratio = 0.5f;
+  config.bend_ratio = 1.5f;  // would make a bend easier to cross than a flat surface
+  EXPECT_FALSE(config.is_valid(&why));
+  config.smooth_growth = false;  // not used then
+  EXPECT_TRUE(config.is_valid(&why)) << why;
 }
 
 TEST(Segmentation, AMapWithoutFeaturesIsAClearError) {

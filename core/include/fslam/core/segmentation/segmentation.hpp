@@ -79,6 +79,20 @@ struct PromptConfig {
   float max_threshold = 1.0f;
   float threshold_step = 0.05f;
   float min_jump = 2.0f;  // ratio of Gaussian counts between neighbouring thresholds
+  // Growth that stays on the prompted smooth surface is no leak: a step's jump counts only the
+  // Gaussians it adds that are not reached from the seeds over smooth neighbour pairs (both
+  // flat, normals within smooth_max_angle_deg, each mean within smooth_max_offset of the other's
+  // tangent plane). A wall's texture patches then no longer cut it, while a picture standing off
+  // the wall or a box on the floor still ends at its bend or step. false: every added Gaussian
+  // counts (a leak is any jump) and bend_ratio is not used. Chosen on the synthetic room of
+  // seed 1 (docs/segmentation.md).
+  bool smooth_growth = true;
+  float smooth_max_angle_deg = 20.0f;  // degrees between the two normals
+  float smooth_max_offset = 0.008f;    // metres off the other's tangent plane
+  float flat_ratio = 0.5f;  // a Gaussian has a normal when its smallest scale <= this x its middle one
+  // Across a bend or step (a neighbour pair that is not smooth) a Gaussian joins only within
+  // bend_ratio x the threshold; 1 = the surface's shape does not matter to growth.
+  float bend_ratio = 0.8f;
   bool is_valid(std::string* why = nullptr) const;
 };
 
