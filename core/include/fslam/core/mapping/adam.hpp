@@ -75,12 +75,11 @@ class AdamOptimizer {
 // Learning rates per parameter, the 3DGS defaults (Kerbl et al. 2023, arguments/__init__.py).
 struct GaussianLearningRates {
   // Metres per step. 3DGS multiplies 1.6e-4 by the scene extent and decays it to 1/100 over
-  // 30k iterations; our maps are metric and grow with the trajectory, so we fix the extent at
-  // 4 m (a room, the tracker's local-map radius): 6.4e-4 m, without decay, since an online map
-  // gets tens of steps per view rather than thousands. Schedules go through set_learning_rate.
-  // The online values below (means, SH DC, log-scales) were chosen on redkitchen 0-299 and
-  // checked on 300-599 (docs/mapping.md).
-  float means = 6.4e-4f;
+  // 30k iterations; an online map gets tens of steps per view rather than thousands, so we take
+  // twice 3DGS's rate in metres, without decay (refinement decays it, Mapper::refine).
+  // Schedules go through set_learning_rate. The online values below (means, SH DC, log-scales)
+  // were chosen on redkitchen 0-299 and checked on 300-599 (docs/mapping.md).
+  float means = 3.2e-4f;
   float sh_dc = 1e-2f;           // SH units per step (4x 3DGS's feature_lr: few steps per view)
   float sh_rest = 2.5e-3f / 20;  // SH units per step, higher bands (3DGS feature_lr / 20)
   // Logit units per step. 0.05 is the original 3DGS release; the 2024 update of the official code
