@@ -67,39 +67,50 @@ bool register_colour_to_depth(const cv::Mat& colour, const cv::Mat& depth,
                          std::to_string(c.width) + "x" + std::to_string(c.height));
 
   // Pixels without depth are placed at the frame's median depth: the surfaces around a hole are
-  // far closer to it than to infinity, where the sensors' offset would be ignored.
+  // far closer to it than to infinity, where the sensors' offset would be ignored. The median of
+  // every 4th pixel in u and v is as good a guess and 16x cheaper.
+  constexpr int kMedianStride = 4;
   std::vector<float> valid;  // metres
-  valid.reserve(depth.total());
-  for (int v = 0; v < depth.rows; ++v) {
+  valid.reserve(depth.total() / (kMedianStride * kMedianStride) + 1);
+  for (int v = 0; v < depth.rows; v += kMedianStride) {
     const float* z_row = depth.ptr<float>(v);
-    for (int u = 0; u < depth.cols; ++u)
+    for (int u = 0; u < depth.cols; u += kMedianStride)
       if (std::isfinite(z_row[u]) && z_row[u] > 0.0f) valid.push_back(z_row[u]);
   }
-  double fill = 0.0;  // 0: no depth at all, rays to infinity
+  float fill = 0.0f;  // 0: no depth at all, rays to infinity
   if (!valid.empty()) {
     std::nth_element(valid.begin(), valid.begin() + valid.size() / 2, valid.end());
     fill = valid[valid.size() / 2];
   }
-  const Eigen::Vector3d& t = colour_camera.t_colour_depth;
+  // p_colour = p_depth + t, then the colour pinhole: u_c = fx (x z + tx) / (z + tz) + cx with
+  // (x, y) the depth pixel's ray at z = 1, precomputed per column and row.
+  const float fx = static_cast<float>(c.fx), fy = static_cast<float>(c.fy);
+  const float cx = static_cast<float>(c.cx), cy = static_cast<float>(c.cy);
+  const float tx = static_cast<float>(colour_camera.t_colour_depth.x());
+  const float ty = static_cast<float>(colour_camera.t_colour_depth.y());
+  const float tz = static_cast<float>(colour_camera.t_colour_depth.z());
+  std::vector<float> ray_x(static_cast<std::size_t>(depth.cols));
+  for (int u = 0; u < depth.cols; ++u)
+    ray_x[static_cast<std::size_t>(u)] =
+        static_cast<float>((u - depth_camera.cx) / depth_camera.fx);
   cv::Mat map_u(depth.size(), CV_32FC1), map_v(depth.size(), CV_32FC1);
   for (int v = 0; v < depth.rows; ++v) {
     const float* z_row = depth.ptr<float>(v);  // [W] metres
     float* mu = map_u.ptr<float>(v);
     float* mv = map_v.ptr<float>(v);
-    const double y = (v - depth_camera.cy) / depth_camera.fy;  // ray direction at z = 1
+    const float y = static_cast<float>((v - depth_camera.cy) / depth_camera.fy);
     for (int u = 0; u < depth.cols; ++u) {
-      const double x = (u - depth_camera.cx) / depth_camera.fx;
-      const double z = std::isfinite(z_row[u]) && z_row[u] > 0.0f ? z_row[u] : fill;
-      double xc = x, yc = y;
-      if (z > 0.0) {  // p_colour = p_depth + t, then the colour pinhole
-        const double zc = z + t.z();
-        if (zc > 0.0) {
-          xc = (x * z + t.x()) / zc;
-          yc = (y * z + t.y()) / zc;
-        }
+      const float x = ray_x[static_cast<std::size_t>(u)];
+      const float z = std::isfinite(z_row[u]) && z_row[u] > 0.0f ? z_row[u] : fill;
+      const float zc = z + tz;
+      if (z > 0.0f && zc > 0.0f) {
+        const float inv = 1.0f / zc;
+        mu[u] = fx * (x * z + tx) * inv + cx;
+        mv[u] = fy * (y * z + ty) * inv + cy;
+      } else {  // the direction alone
+        mu[u] = fx * x + cx;
+        mv[u] = fy * y + cy;
       }
-      mu[u] = static_cast<float>(c.fx * xc + c.cx);
-      mv[u] = static_cast<float>(c.fy * yc + c.cy);
     }
   }
   cv::Mat out;
