@@ -2,7 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
+#include <iomanip>
+#include <sstream>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -32,10 +33,12 @@ bool ColourCamera::parse(const std::string& text, ColourCamera* out, std::string
 }
 
 std::string ColourCamera::to_string() const {
-  char text[160];
-  std::snprintf(text, sizeof text, "%.2f,%.2f,%.2f,%.2f,%.4f,%.4f,%.4f", camera.fx, camera.fy,
-                camera.cx, camera.cy, t_colour_depth.x(), t_colour_depth.y(), t_colour_depth.z());
-  return text;
+  // Hundredths of a pixel and tenths of a millimetre: finer than any calibration.
+  std::ostringstream text;
+  text << std::fixed << std::setprecision(2) << camera.fx << ',' << camera.fy << ',' << camera.cx
+       << ',' << camera.cy << std::setprecision(4) << ',' << t_colour_depth.x() << ','
+       << t_colour_depth.y() << ',' << t_colour_depth.z();
+  return text.str();
 }
 
 bool ColourCamera::is_valid(std::string* why) const {

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
+#include "colour_rig.hpp"
 #include "fslam/core/synth/synthetic_scene.hpp"
 
 namespace fslam::core {
@@ -19,21 +20,13 @@ struct Scene {
   Scene() {
     SynthOptions options;
     trajectory = make_trajectory(room, options);
-    truth.camera = camera;
-    truth.camera.fx *= 0.9;
-    truth.camera.fy *= 0.9;
-    truth.camera.cx += 3.0;
-    truth.camera.cy -= 2.0;
-    truth.t_colour_depth = {-0.025, 0.004, 0.0};
+    truth = test::offset_colour_camera(camera);
   }
   ColourCalibrationView view(std::size_t frame) const {
     ColourCalibrationView v;
     v.T_world_depth = trajectory[frame].T_world_camera;
-    const SynthView depth_view = render_view(room, camera, v.T_world_depth);
-    const Eigen::Isometry3d T_world_colour =
-        v.T_world_depth * Eigen::Translation3d(-truth.t_colour_depth);
-    v.colour = render_view(room, truth.camera, T_world_colour).colour;
-    v.depth = depth_view.depth;
+    v.depth = render_view(room, camera, v.T_world_depth).depth;
+    v.colour = test::colour_sensor_image(room, truth, v.T_world_depth);
     return v;
   }
 };

@@ -6,32 +6,14 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
+#include "colour_rig.hpp"
 #include "fslam/core/synth/synthetic_scene.hpp"
 
 namespace fslam::core {
 namespace {
 
-// A colour sensor like a Kinect v1's: 10 % shorter focal length, principal point a few pixels
-// off, 2.5 cm to the side of the depth camera.
-ColourCamera offset_colour_camera(const PinholeCamera& depth_camera) {
-  ColourCamera c;
-  c.camera = depth_camera;
-  c.camera.fx *= 0.9;
-  c.camera.fy *= 0.9;
-  c.camera.cx += 3.0;
-  c.camera.cy -= 2.0;
-  c.t_colour_depth = {-0.025, 0.004, 0.0};
-  return c;
-}
-
-// The colour sensor's image of the room when the depth camera is at T_world_depth.
-cv::Mat colour_sensor_image(const SyntheticRoom& room, const ColourCamera& colour,
-                            const Eigen::Isometry3d& T_world_depth) {
-  // p_colour = p_depth + t, so the colour camera sits at -t in the depth frame.
-  const Eigen::Isometry3d T_world_colour =
-      T_world_depth * Eigen::Translation3d(-colour.t_colour_depth);
-  return render_view(room, colour.camera, T_world_colour).colour;
-}
+using test::colour_sensor_image;
+using test::offset_colour_camera;
 
 double mean_abs_difference(const cv::Mat& a, const cv::Mat& b) {
   const cv::Scalar m = cv::mean(cv::abs(a - b) + cv::abs(b - a));  // saturating per direction
