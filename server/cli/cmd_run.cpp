@@ -18,9 +18,6 @@
 #include <thread>
 #include <vector>
 
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
@@ -170,10 +167,6 @@ int run_slam(const RunArgs& args) {
   // mapping's parallel loops get one thread fewer; as fast as it can, they may use all.
   const int mapping_threads = config.realtime ? std::max(1, args.threads - 1) : args.threads;
   std::thread mapping([&] {
-    // In real time mapping yields the CPU to tracking and decoding whenever they want it (nice
-    // 10 on this thread, which runs the one-thread arena's work): on two cores those two share
-    // the core mapping leaves, and a late frame is a skipped frame.
-    if (config.realtime) setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
     std::string mwhy;
     tbb::task_arena arena(mapping_threads);
     const bool ok = arena.execute([&] {

@@ -54,11 +54,13 @@ bool sample(const cv::Mat& grey, double u, double v, double* value) {
   return true;
 }
 
+// Where a depth-frame point lands in the colour image; false behind the colour camera.
 bool project(const ColourCamera& c, const Eigen::Vector3d& p_depth, double* u, double* v) {
   const Eigen::Vector3d p = p_depth + c.t_colour_depth;
   if (!(p.z() > 0.0)) return false;
-  *u = c.camera.fx * p.x() / p.z() + c.camera.cx;
-  *v = c.camera.fy * p.y() / p.z() + c.camera.cy;
+  const Eigen::Vector2d pixel = c.camera.project(p);
+  *u = pixel.x();
+  *v = pixel.y();
   return true;
 }
 

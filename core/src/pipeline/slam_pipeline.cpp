@@ -1,5 +1,9 @@
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <utility>
@@ -69,6 +73,10 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
                          " channels but mapper.feature_dim is " +
                          std::to_string(config_.mapper.feature_dim));
   }
+  // In real time mapping yields the CPU to tracking and decoding whenever they want it (nice 10
+  // on the calling thread: Linux priorities are per thread): on two cores those two share what
+  // mapping leaves, and a late frame is a skipped frame.
+  if (config_.realtime) setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
   for (;;) {
     MapperKeyframe kf;
     std::size_t waiting = 0;

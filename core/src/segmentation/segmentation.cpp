@@ -158,6 +158,7 @@ GaussianMap geometry_copy(const GaussianMap& map, int channels) {
 // region from creeping across a boundary through the blended latents there. A Gaussian reached
 // only across a bend or step (not a smooth pair, `smooth` [N] lists them per Gaussian) must be
 // within bend_ratio x threshold: the surface's shape marks object boundaries the latents blur.
+// `selected` [N] is all zero on entry and marks the region on return.
 void grow(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
           const std::vector<std::vector<int>>& smooth, float bend_ratio, const std::vector<int>& seeds,
           const float* zp, float threshold, std::vector<std::uint8_t>* selected) {
@@ -174,14 +175,12 @@ void grow(const FeatureSpace& space, const std::vector<std::vector<int>>& neighb
     queue.push({space.distance(space.z(s), mean.data()), s, false});
     queued[static_cast<std::size_t>(s)] = kSmooth;
   }
-  std::vector<std::uint8_t> in(selected->size(), 0);
   while (!queue.empty()) {
     const auto [key, i, bend] = queue.top();
     queue.pop();
-    if (in[static_cast<std::size_t>(i)]) continue;
+    if ((*selected)[static_cast<std::size_t>(i)]) continue;  // joined through an earlier entry
     const float* zi = space.z(i);
     if (space.distance(zi, mean.data()) >= (bend ? bend_ratio * threshold : threshold)) continue;
-    in[static_cast<std::size_t>(i)] = 1;
     (*selected)[static_cast<std::size_t>(i)] = 1;
     count += 1.0;
     for (int c = 0; c < dim; ++c) {

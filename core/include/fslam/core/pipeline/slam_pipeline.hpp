@@ -58,7 +58,8 @@ class SlamPipeline {
                      const Eigen::Isometry3d* mapping_pose = nullptr);
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera);
 
-  // Mapping thread: runs until finish() was called and every queued keyframe is mapped.
+  // Mapping thread: runs until finish() was called and every queued keyframe is mapped. In real
+  // time it lowers the calling thread's priority (nice 10) so tracking never waits for it.
   // on_keyframe (optional) is called after each keyframe's refinement round. Returns false with
   // `why` when mapping failed (the tracker keeps running; the failure is reported once).
   bool run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
