@@ -301,6 +301,10 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
   const std::size_t n = scene.count;
   const int stride = kGrad2dFixed + D;
   const int channels = 4 + D;  // colour 3, depth 1, features D: the prefix sums per pixel
+  // Per pixel of a tile, the output gradients the inner loop reads, pixel-major so one pixel's
+  // channels share cache lines: colour 3, depth, then D features (absent ones are zero).
+  const bool feature_grads = grad_out.features != nullptr && D > 0;
+  const int grad_channels = 4 + (feature_grads ? D : 0);
   tbb::enumerable_thread_specific<std::vector<T>> buffers(
       [&] { return std::vector<T>(n * stride, T(0)); });
   const int tiles = st.tiles_x * st.tiles_y;
@@ -309,6 +313,9 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
     constexpr int kPixels = kTileSize * kTileSize;
     std::vector<T> trans(kPixels), prefix(static_cast<std::size_t>(kPixels) * channels);
     std::vector<T> total(static_cast<std::size_t>(kPixels) * channels);
+    std::vector<T> pixel_grads(static_cast<std::size_t>(kPixels) * grad_channels);
+    std::vector<T> g_background(kPixels), g_alpha_out(kPixels);
+    std::vector<std::int32_t> pixel_end(kPixels), pixel_median(kPixels);
     std::vector<T> feature_grad(static_cast<std::size_t>(D));  // one splat's dL/df
     for (int t = r.begin(); t != r.end(); ++t) {
       const int tx = t % st.tiles_x, ty = t / st.tiles_x;
@@ -316,7 +323,8 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
       if (begin == end) continue;
       const int x0 = tx * kTileSize, y0 = ty * kTileSize;
       const int tw = std::min(W, x0 + kTileSize) - x0, th = std::min(H, y0 + kTileSize) - y0;
-      // Per pixel: T_final and the final composited values without the background.
+      // Per pixel: T_final, the final composited values without the background, and the
+      // output gradients.
       std::fill(trans.begin(), trans.end(), T(1));
       std::fill(prefix.begin(), prefix.end(), T(0));
       int max_end = 0;
@@ -329,7 +337,19 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
           for (int c = 0; c < 3; ++c) tot[c] = out.colour[c * plane + pix] - t_final * background[c];
           tot[3] = out.depth[pix];
           for (int c = 0; c < D; ++c) tot[4 + c] = out.features[c * plane + pix];
-          max_end = std::max(max_end, st.pixel_end[pix]);
+          T* gp = pixel_grads.data() + static_cast<std::size_t>(lp) * grad_channels;
+          for (int c = 0; c < 3; ++c) gp[c] = grad_out.colour ? grad_out.colour[c * plane + pix] : T(0);
+          gp[3] = grad_out.depth ? grad_out.depth[pix] : T(0);
+          if (feature_grads)
+            for (int c = 0; c < D; ++c) gp[4 + c] = grad_out.features[c * plane + pix];
+          // The parts of dL/dalpha_i that do not depend on splat i, times (1 - alpha_i): the
+          // background seen through the pixel (a colour term) and the accumulated opacity.
+          g_background[lp] = T(0);
+          for (int c = 0; c < 3; ++c) g_background[lp] -= gp[c] * background[c] * t_final;
+          g_alpha_out[lp] = grad_out.alpha != nullptr ? grad_out.alpha[pix] * t_final : T(0);
+          pixel_end[lp] = st.pixel_end[pix];
+          pixel_median[lp] = grad_out.median_depth != nullptr ? st.pixel_median[pix] : -1;
+          max_end = std::max(max_end, pixel_end[lp]);
         }
       for (int j = 0; j < max_end; ++j) {
         const std::uint32_t id = st.tile_ids[begin + j];
@@ -348,62 +368,59 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
           sx0 = std::max(sx0 - x0, 0);
           sx1 = std::min(sx1 - x0, tw);
           for (int lx = sx0; lx < sx1; ++lx) {
-            const std::size_t pix = static_cast<std::size_t>(y0 + ly) * W + x0 + lx;
-            if (j >= st.pixel_end[pix]) continue;
+            const int lp = ly * kTileSize + lx;
+            if (j >= pixel_end[lp]) continue;
             const int px = x0 + lx, py = y0 + ly;
             T gauss;
             const T alpha = math::splat_alpha(g, T(px), T(py), &gauss);
             if (alpha == T(0)) continue;
             touched = true;
-            const int lp = ly * kTileSize + lx;
             const T Ti = trans[lp];
             const T w = alpha * Ti;
             const T one_minus = T(1) - alpha;
-            const T t_final = T(1) - out.alpha[pix];
+            const T inv_one_minus = T(1) / one_minus;
             T* pre = prefix.data() + static_cast<std::size_t>(lp) * channels;
             const T* tot = total.data() + static_cast<std::size_t>(lp) * channels;
+            const T* gp = pixel_grads.data() + static_cast<std::size_t>(lp) * grad_channels;
             const T d = math::splat_planar_depth(g, T(px), T(py));
             // dL/dalpha_i = sum_ch g_ch (T_i v_ch - S_ch / (1 - alpha_i)) with S the part
-            // composited behind splat i, plus the background and accumulated-opacity terms.
-            T g_alpha_rgb = T(0), g_alpha_feat = T(0), g_alpha_other = T(0);
-            if (grad_out.colour != nullptr) {
-              for (int c = 0; c < 3; ++c) {
-                const T gc = grad_out.colour[c * plane + pix];
-                const T after = pre[c] + w * g.colour[c];
-                pg.colour[c] += w * gc;
-                g_alpha_rgb += gc * (Ti * g.colour[c] - (tot[c] - after) / one_minus -
-                                     background[c] * t_final / one_minus);
-              }
+            // composited behind splat i (S = total - prefix - w v), plus the background and
+            // accumulated-opacity terms (over 1 - alpha_i). Each channel group is summed as
+            // T_i sum g v - (sum g (total - prefix) - w sum g v) / (1 - alpha_i).
+            T gv = T(0), g_rest = T(0);
+            for (int c = 0; c < 3; ++c) {
+              pg.colour[c] += w * gp[c];
+              gv += gp[c] * g.colour[c];
+              g_rest += gp[c] * (tot[c] - pre[c]);
+              pre[c] += w * g.colour[c];
             }
-            T g_depth_here = T(0);
-            if (grad_out.depth != nullptr) {
-              const T gd = grad_out.depth[pix];
-              const T after = pre[3] + w * d;
-              g_depth_here += w * gd;
-              g_alpha_other += gd * (Ti * d - (tot[3] - after) / one_minus);
-            }
-            if (grad_out.median_depth != nullptr && st.pixel_median[pix] == j) {
-              g_depth_here += grad_out.median_depth[pix];
-            }
-            if (grad_out.alpha != nullptr) {
-              g_alpha_other += grad_out.alpha[pix] * t_final / one_minus;
-            }
-            if (grad_out.features != nullptr && D > 0) {
+            const T g_alpha_rgb = Ti * gv - (g_rest - w * gv - g_background[lp]) * inv_one_minus;
+            const T g_depth_out = gp[3];
+            T g_depth_here = w * g_depth_out;
+            T g_alpha_other = g_depth_out * (Ti * d - (tot[3] - pre[3] - w * d) * inv_one_minus) +
+                              g_alpha_out[lp] * inv_one_minus;
+            pre[3] += w * d;
+            if (pixel_median[lp] == j) g_depth_here += grad_out.median_depth[py * W + px];
+            T g_alpha_feat = T(0);
+            if (feature_grads) {
+              T fv = T(0), f_rest = T(0);
               for (int c = 0; c < D; ++c) {
-                const T gf = grad_out.features[c * plane + pix];
-                const T after = pre[4 + c] + w * f[c];
+                const T gf = gp[4 + c];
                 feature_grad[c] += w * gf;
-                g_alpha_feat += gf * (Ti * f[c] - (tot[4 + c] - after) / one_minus);
+                fv += gf * f[c];
+                f_rest += gf * (tot[4 + c] - pre[4 + c]);
+                pre[4 + c] += w * f[c];
               }
+              g_alpha_feat = Ti * fv - (f_rest - w * fv) * inv_one_minus;
+            } else {
+              for (int c = 0; c < D; ++c) pre[4 + c] += w * f[c];
             }
             imp_rgb += std::abs(g_alpha_rgb);
             imp_feat += std::abs(g_alpha_feat);
             const T g_alpha = g_alpha_rgb + g_alpha_feat + g_alpha_other;
             math::splat_pixel_backward(g, T(px), T(py), alpha, gauss, g_alpha, g_depth_here, &pg);
-            // Roll the pixel's state past splat i (the recovery of eq. transmittance_recover).
-            for (int c = 0; c < 3; ++c) pre[c] += w * g.colour[c];
-            pre[3] += w * d;
-            for (int c = 0; c < D; ++c) pre[4 + c] += w * f[c];
+            // Roll the pixel's transmittance past splat i (eq. transmittance_recover); the
+            // prefix sums were rolled above.
             trans[lp] = Ti * one_minus;
           }
         }
