@@ -228,6 +228,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   mapper.add("sh_degree", &Mapper::sh_degree);
   mapper.add("feature_dim", &Mapper::feature_dim);
   mapper.add("training_scale", &Mapper::training_scale);
+  mapper.add("refine_scale", &Mapper::refine_scale);
   mapper.add("insert_stride", &Mapper::insert_stride);
   mapper.add("new_alpha", &Mapper::new_alpha);
   mapper.add("new_depth_margin", &Mapper::new_depth_margin);

@@ -36,6 +36,9 @@ bool MapperConfig::is_valid(std::string* why) const {
   if (!(training_scale > 0.0 && training_scale <= 1.0)) {
     return fail(why, "mapper: training_scale must be in (0, 1]");
   }
+  if (!(refine_scale >= 0.0 && refine_scale <= 1.0)) {
+    return fail(why, "mapper: refine_scale must be in [0, 1] (0: refine at training_scale)");
+  }
   if (insert_stride < 1) return fail(why, "mapper: insert_stride must be >= 1");
   if (!(initial_opacity > 0.0f && initial_opacity < 1.0f)) {
     return fail(why, "mapper: initial_opacity must be in (0, 1)");
@@ -68,14 +71,35 @@ bool Mapper::store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::str
   }
   if (!keyframe.T_world_camera.matrix().allFinite()) return fail(why, "keyframe: non-finite pose");
   const PinholeCamera cam = keyframe.camera.scaled(config_.training_scale);
-  const cv::Size small(cam.width, cam.height);
-  cv::Mat colour, depth;
-  cv::resize(keyframe.colour, colour, small, 0, 0, cv::INTER_AREA);
-  // Nearest neighbour: averaging depth across an edge invents surfaces that are not there.
-  cv::resize(keyframe.depth, depth, small, 0, 0, cv::INTER_NEAREST);
+  if (!keyframe.feature_target.empty() &&
+      (keyframe.feature_target.width != cam.width || keyframe.feature_target.height != cam.height ||
+       keyframe.feature_target.channels != config_.feature_dim)) {
+    return fail(why, "keyframe: feature target must be [D, h, w] at the training resolution");
+  }
   out->frame_id = keyframe.frame_id;
+  out->input_camera = keyframe.camera;
+  out->feature_target = keyframe.feature_target;
+  cv::Mat colour, depth;
+  cv::resize(keyframe.colour, colour, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_AREA);
+  // Nearest neighbour: averaging depth across an edge invents surfaces that are not there.
+  cv::resize(keyframe.depth, depth, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
+  if (!make_view(colour, depth, cam, keyframe.T_world_camera, out, why)) return false;
+  // The refinement's images, kept as 8-bit colour and float depth at refine_scale.
+  if (config_.refine_scale > config_.training_scale) {
+    const PinholeCamera rcam = keyframe.camera.scaled(config_.refine_scale);
+    cv::resize(keyframe.colour, out->refine_colour, cv::Size(rcam.width, rcam.height), 0, 0,
+               cv::INTER_AREA);
+    cv::resize(keyframe.depth, out->refine_depth, cv::Size(rcam.width, rcam.height), 0, 0,
+               cv::INTER_NEAREST);
+  }
+  return true;
+}
+
+bool Mapper::make_view(const cv::Mat& colour, const cv::Mat& depth, const PinholeCamera& cam,
+                       const Eigen::Isometry3d& T_world_camera, StoredKeyframe* out,
+                       std::string* why) const {
   out->view.camera = cam;
-  out->view.T_camera_world = keyframe.T_world_camera.inverse();
+  out->view.T_camera_world = T_world_camera.inverse();
   out->colour = PlanarImage(cam.width, cam.height, 3);
   out->depth = PlanarImage(cam.width, cam.height, 1);
   for (int v = 0; v < cam.height; ++v) {
@@ -88,13 +112,28 @@ bool Mapper::store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::str
           (std::isfinite(z) && z > config_.min_depth && z < config_.max_depth) ? z : 0.0f;
     }
   }
-  if (!depth_to_normals(out->depth, cam.intrinsics(), &out->normals, why)) return false;
-  if (!keyframe.feature_target.empty()) {
-    if (keyframe.feature_target.width != cam.width || keyframe.feature_target.height != cam.height ||
-        keyframe.feature_target.channels != config_.feature_dim) {
-      return fail(why, "keyframe: feature target must be [D, h, w] at the training resolution");
+  return depth_to_normals(out->depth, cam.intrinsics(), &out->normals, why);
+}
+
+// The keyframe at refine_scale from the images it keeps, its feature target resampled
+// bilinearly from the training resolution.
+bool Mapper::refine_view(const StoredKeyframe& kf, StoredKeyframe* out, std::string* why) const {
+  out->frame_id = kf.frame_id;
+  out->input_camera = kf.input_camera;
+  const PinholeCamera cam = kf.input_camera.scaled(config_.refine_scale);
+  if (!make_view(kf.refine_colour, kf.refine_depth, cam, kf.view.T_camera_world.inverse(), out,
+                 why)) {
+    return false;
+  }
+  out->feature_target = PlanarImage();
+  if (!kf.feature_target.empty()) {
+    const PlanarImage& t = kf.feature_target;
+    out->feature_target = PlanarImage(cam.width, cam.height, t.channels);
+    for (int c = 0; c < t.channels; ++c) {
+      const cv::Mat plane(t.height, t.width, CV_32FC1, const_cast<float*>(t.plane(c)));
+      cv::Mat dst(cam.height, cam.width, CV_32FC1, out->feature_target.plane(c));
+      cv::resize(plane, dst, dst.size(), 0, 0, cv::INTER_LINEAR);
     }
-    out->feature_target = keyframe.feature_target;
   }
   return true;
 }
@@ -375,7 +414,13 @@ bool Mapper::refine(int steps, std::string* why, const std::function<void(int, i
     // 3DGS's position schedule: log-linear decay to 1/100 of the rate over the refinement.
     const float t = steps > 1 ? static_cast<float>(it) / static_cast<float>(steps - 1) : 0.0f;
     adam_.set_learning_rate(kAdamMeans, lr.means * std::pow(0.01f, t));
-    if (!step(keyframes_[sample_keyframe(true)], nullptr, why)) return false;
+    const StoredKeyframe& kf = keyframes_[sample_keyframe(true)];
+    if (kf.refine_colour.empty()) {
+      if (!step(kf, nullptr, why)) return false;
+    } else {
+      StoredKeyframe view;
+      if (!refine_view(kf, &view, why) || !step(view, nullptr, why)) return false;
+    }
     if (progress && ((it + 1) % 10 == 0 || it + 1 == steps)) progress(it + 1, steps);
   }
   adam_.set_learning_rate(kAdamMeans, lr.means);  // the online rate again after refinement

@@ -1,9 +1,11 @@
 // The CPU rasteriser against a per-pixel reference, analytic cases of the camera-plane depth, and
 // every gradient against central finite differences in double precision.
+#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -123,6 +125,60 @@ TEST(Rasterizer, TiledForwardEqualsPerPixelReference) {
     EXPECT_EQ(tiled.alpha[i], ref.alpha[i]);
   }
   for (std::size_t i = 0; i < tiled.features.size(); ++i) EXPECT_EQ(tiled.features[i], ref.features[i]);
+}
+
+// An off-centre principal point: a crop of a view is the same pinhole with the principal point
+// moved by the crop's corner, and it renders the window of the whole view, also where the
+// principal point lies outside the crop. The scene keeps the Gaussians centred near the crop, so
+// that no Jacobian is clamped to the view (math::clamp_to_view) in either render.
+TEST(Rasterizer, CropRendersTheWindowOfTheWholeView) {
+  const auto whole = make_camera(48, 40, -0.05);
+  for (const auto& [x0, y0] : {std::pair{14, 6}, std::pair{30, 26}}) {  // the second misses (cx, cy)
+    const int w = 17, h = 13;
+    Scene all = make_scene(200, 0, 2, true, 11), scene = all;
+    scene.means.clear(), scene.rotations.clear(), scene.log_scales.clear();
+    scene.opacity_logits.clear(), scene.sh.clear(), scene.features.clear(), scene.filter_3d.clear();
+    for (std::size_t i = 0; i < all.size(); ++i) {
+      const double* m = &all.means[3 * i];
+      double c[3];
+      for (int r = 0; r < 3; ++r)
+        c[r] = whole.R[3 * r] * m[0] + whole.R[3 * r + 1] * m[1] + whole.R[3 * r + 2] * m[2] + whole.t[r];
+      const double u = whole.fx * c[0] / c[2] + whole.cx, v = whole.fy * c[1] / c[2] + whole.cy;
+      if (u < x0 - 2 || u > x0 + w + 1 || v < y0 - 1.5 || v > y0 + h + 1) continue;
+      auto copy = [&](const std::vector<double>& from, std::vector<double>* to, int k) {
+        to->insert(to->end(), from.begin() + k * i, from.begin() + k * (i + 1));
+      };
+      copy(all.means, &scene.means, 3);
+      copy(all.rotations, &scene.rotations, 4);
+      copy(all.log_scales, &scene.log_scales, 3);
+      copy(all.opacity_logits, &scene.opacity_logits, 1);
+      copy(all.sh, &scene.sh, 3);
+      copy(all.features, &scene.features, 2);
+      copy(all.filter_3d, &scene.filter_3d, 1);
+    }
+    ASSERT_GT(scene.size(), 3u);
+    Images full(48, 40, 2), part(w, h, 2);
+    RasterState<double> st;
+    render_impl::rasterize_forward(scene.view(), whole, kBackground, true, &st, full.outputs());
+    auto crop = whole;
+    crop.cx -= x0;
+    crop.cy -= y0;
+    crop.width = w;
+    crop.height = h;
+    render_impl::rasterize_forward(scene.view(), crop, kBackground, true, &st, part.outputs());
+    double max_diff = 0.0, coverage = 0.0;
+    for (int v = 0; v < h; ++v)
+      for (int u = 0; u < w; ++u) {
+        const int p = v * w + u, q = (v + y0) * 48 + (u + x0);
+        for (int c = 0; c < 3; ++c)
+          max_diff = std::max(max_diff, std::abs(part.colour[c * w * h + p] - full.colour[c * 1920 + q]));
+        max_diff = std::max(max_diff, std::abs(part.median[p] - full.median[q]));
+        max_diff = std::max(max_diff, std::abs(part.features[w * h + p] - full.features[1920 + q]));
+        coverage += part.alpha[p] / (w * h);
+      }
+    EXPECT_GT(coverage, 0.15) << "crop at " << x0 << "," << y0;
+    EXPECT_LT(max_diff, 1e-9) << "crop at " << x0 << "," << y0;
+  }
 }
 
 // One flat (disc) Gaussian: its camera-plane depth must follow the disc's plane, unlike the

@@ -14,7 +14,7 @@ constexpr float kAlphaMin = 1.0f / 255.0f;    // splat-pixel pairs below are ski
 constexpr float kAlphaMax = 0.99f;            // alpha is clamped here (3DGS)
 constexpr float kTransmittanceMin = 1e-4f;    // a pixel stops compositing below this
 constexpr float kLowPassVariance = 0.3f;      // pixels^2 added to every 2D covariance (3DGS)
-constexpr float kFovClampFactor = 1.3f;       // x/z, y/z clamped to 1.3 tan(fov/2) in the Jacobian
+constexpr float kFovClampFactor = 1.3f;       // x/z, y/z clamped to 1.3x the view in the Jacobian (clamp_to_view)
 
 // A view for the renderer: world-to-camera transform and pinhole intrinsics.
 template <typename T>
@@ -198,6 +198,25 @@ struct ProjectionTerms {
   T colour_raw[3];  // 0.5 + SH before the clamp at 0
 };
 
+// Clamps x/z and y/z for the Jacobian of the projection to the image's extent in normalised
+// coordinates, widened on each side by (kFovClampFactor - 1) of its half-size: 3DGS's
+// 1.3 tan(fov/2) for a centred principal point, and the same window around a crop's own extent.
+// Returns which coordinates were clamped.
+template <typename T>
+FSLAM_HD void clamp_to_view(const SplatCamera<T>& cam, T* tx, T* ty, bool* clamped_x,
+                            bool* clamped_y) {
+  const T left = -cam.cx / cam.fx, right = (T(cam.width) - cam.cx) / cam.fx;
+  const T top = -cam.cy / cam.fy, bottom = (T(cam.height) - cam.cy) / cam.fy;
+  const T margin_x = T(0.5) * (T(kFovClampFactor) - T(1)) * (right - left);
+  const T margin_y = T(0.5) * (T(kFovClampFactor) - T(1)) * (bottom - top);
+  const T lo_x = left - margin_x, hi_x = right + margin_x;
+  const T lo_y = top - margin_y, hi_y = bottom + margin_y;
+  *clamped_x = *tx < lo_x || *tx > hi_x;
+  *clamped_y = *ty < lo_y || *ty > hi_y;
+  *tx = *tx < lo_x ? lo_x : (*tx > hi_x ? hi_x : *tx);
+  *ty = *ty < lo_y ? lo_y : (*ty > hi_y ? hi_y : *ty);
+}
+
 // Projects one Gaussian (eq. proj) and computes its opacity, planar depth coefficients and
 // colour. sh: [K, 3]. Returns false when culled (behind the near plane, degenerate, invisible).
 template <typename T>
@@ -230,13 +249,8 @@ FSLAM_HD bool project_gaussian(const T mean[3], const T quat[4], const T log_sca
 
   // Local affine approximation of the perspective projection (EWA), x/z and y/z clamped as in
   // 3DGS so that Gaussians far outside the view do not get enormous footprints.
-  const T lim_x = T(kFovClampFactor) * (T(0.5) * T(cam.width) / cam.fx);
-  const T lim_y = T(kFovClampFactor) * (T(0.5) * T(cam.height) / cam.fy);
   T tx = x / z, ty = y / z;
-  p.clamp_x = tx < -lim_x || tx > lim_x;
-  p.clamp_y = ty < -lim_y || ty > lim_y;
-  tx = tx < -lim_x ? -lim_x : (tx > lim_x ? lim_x : tx);
-  ty = ty < -lim_y ? -lim_y : (ty > lim_y ? lim_y : ty);
+  clamp_to_view(cam, &tx, &ty, &p.clamp_x, &p.clamp_y);
   p.J[0] = cam.fx / z;
   p.J[1] = T(0);
   p.J[2] = -cam.fx * tx / z;
@@ -375,11 +389,9 @@ FSLAM_HD void project_gaussian_backward(const T quat[4], T filter_variance, cons
         g_J[3 * a + c] = T(2) * sum;
       }
     // J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]], tx = x/z (unless clamped).
-    const T lim_x = T(kFovClampFactor) * (T(0.5) * T(cam.width) / cam.fx);
-    const T lim_y = T(kFovClampFactor) * (T(0.5) * T(cam.height) / cam.fy);
     T tx = x / z, ty = y / z;
-    tx = tx < -lim_x ? -lim_x : (tx > lim_x ? lim_x : tx);
-    ty = ty < -lim_y ? -lim_y : (ty > lim_y ? lim_y : ty);
+    bool clamped_x, clamped_y;
+    clamp_to_view(cam, &tx, &ty, &clamped_x, &clamped_y);
     g_mean_cam[2] += -g_J[0] * cam.fx / (z * z) - g_J[4] * cam.fy / (z * z);
     // J02 = -fx tx / z: with tx = x / z (unclamped) this is -fx x / z^2.
     if (p.clamp_x) {
