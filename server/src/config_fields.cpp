@@ -160,6 +160,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   using Tracker = core::TrackerConfig;
   const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.pipeline.tracker; });
   tracker.add("constant_velocity", &Tracker::constant_velocity);
+  tracker.add("refresh_features", &Tracker::refresh_features);
   tracker.add("parallel", &Tracker::parallel);
 
   using Preprocess = core::PreprocessConfig;
