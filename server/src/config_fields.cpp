@@ -209,6 +209,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   gicp.add("use_opacity", &Gicp::use_opacity);
   gicp.add("use_features", &Gicp::use_features);
   gicp.add("feature_gamma", &Gicp::feature_gamma);
+  gicp.add("feature_noise", &Gicp::feature_noise);
 
   using Keyframe = core::KeyframeConfig;
   const auto keyframe = section(f, "tracker.keyframe",

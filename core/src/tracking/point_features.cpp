@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <vector>
 
 namespace fslam::core {
 namespace {
@@ -30,11 +31,26 @@ void sample_point_features(const PlanarImage& latent, const PinholeCamera& camer
   const int d = latent.channels;
   points->feature_dim = d;
   points->features.assign(points->size() * static_cast<std::size_t>(d), 0.0f);
+  points->feature_spread.assign(points->size(), 0.0f);
+  // One latent cell in frame pixels along u and v.
+  const Eigen::Vector2d cell(static_cast<double>(camera.width) / latent.width,
+                             static_cast<double>(camera.height) / latent.height);
+  const Eigen::Vector2d steps[4] = {
+      {cell.x(), 0.0}, {-cell.x(), 0.0}, {0.0, cell.y()}, {0.0, -cell.y()}};
+  std::vector<float> neighbour(static_cast<std::size_t>(d));
   for (std::size_t i = 0; i < points->size(); ++i) {
     const Eigen::Vector3d p = points->means[i].cast<double>();
     if (!(p.z() > 0)) continue;
-    sample_latent(latent, camera, camera.project(p),
-                  &points->features[i * static_cast<std::size_t>(d)]);
+    const Eigen::Vector2d uv = camera.project(p);
+    float* f = &points->features[i * static_cast<std::size_t>(d)];
+    sample_latent(latent, camera, uv, f);
+    // The spread: mean of ||f(uv + step) - f(uv)||^2 over the four one-cell steps.
+    double spread = 0.0;
+    for (const Eigen::Vector2d& step : steps) {
+      sample_latent(latent, camera, uv + step, neighbour.data());
+      for (int c = 0; c < d; ++c) spread += (neighbour[c] - f[c]) * (neighbour[c] - f[c]);
+    }
+    points->feature_spread[i] = static_cast<float>(spread / 4.0);
   }
 }
 

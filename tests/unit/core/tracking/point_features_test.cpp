@@ -33,6 +33,26 @@ TEST(PointFeatures, PointsTakeTheLatentWhereTheyProject) {
   EXPECT_NEAR(points.feature(2)[1], 130.0f, 1e-4f);
   EXPECT_EQ(points.feature(3)[0], 0.0f);
   EXPECT_TRUE(points.is_consistent());
+  // Spread: one-cell steps change both channels by 1 (along x) and 10 (along y), so an interior
+  // point has (1 + 1 + 100 + 100) * 2 / 4 = 101. Far outside the frame every step lands on the
+  // same clamped border cell (0), and points behind the camera get 0.
+  ASSERT_EQ(points.feature_spread.size(), 4u);
+  EXPECT_NEAR(points.feature_spread[0], 101.0f, 1e-3f);
+  EXPECT_EQ(points.feature_spread[2], 0.0f);
+  EXPECT_EQ(points.feature_spread[3], 0.0f);
+}
+
+TEST(PointFeatures, AUniformLatentHasNoSpread) {
+  const PlanarImage latent(8, 6, 3, 0.7f);
+  const PinholeCamera camera{60.0, 60.0, 31.5, 23.5, 64, 48};
+  GaussianPoints points;
+  points.means = {Eigen::Vector3f(0.1f, -0.2f, 1.5f), Eigen::Vector3f(-0.5f, 0.3f, 2.0f)};
+  points.covariances.assign(2, Eigen::Matrix3f::Identity());
+  sample_point_features(latent, camera, &points);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    EXPECT_NEAR(points.feature(i)[2], 0.7f, 1e-6f);
+    EXPECT_EQ(points.feature_spread[i], 0.0f);
+  }
 }
 
 TEST(PointFeatures, KeyframeRefreshesOnlyTheMapPointsItSees) {

@@ -17,7 +17,8 @@ namespace fslam::core {
 
 // latent: [D, h, w] over the whole frame of `camera` (any resolution; pixel centres map as
 // PinholeCamera::scaled does). Bilinear, clamped at the borders; points behind the camera get
-// zeros. Sets points->feature_dim = D and fills points->features.
+// zeros. Sets points->feature_dim = D and fills points->features, and points->feature_spread
+// with the mean of ||f(x + s) - f(x)||^2 over the four steps s of one latent cell.
 void sample_point_features(const PlanarImage& latent, const PinholeCamera& camera,
                            GaussianPoints* points_camera);
 
