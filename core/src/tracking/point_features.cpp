@@ -18,9 +18,12 @@ void sample_latent(const PlanarImage& latent, const PinholeCamera& camera,
   const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
   const int x1 = std::min(x0 + 1, latent.width - 1), y1 = std::min(y0 + 1, latent.height - 1);
   const float tx = static_cast<float>(x - x0), ty = static_cast<float>(y - y0);
-  for (int c = 0; c < latent.channels; ++c) {
-    f[c] = (1 - ty) * ((1 - tx) * latent.at(c, y0, x0) + tx * latent.at(c, y0, x1)) +
-           ty * ((1 - tx) * latent.at(c, y1, x0) + tx * latent.at(c, y1, x1));
+  const std::size_t w = static_cast<std::size_t>(latent.width);
+  const std::size_t i00 = y0 * w + x0, i01 = y0 * w + x1, i10 = y1 * w + x0, i11 = y1 * w + x1;
+  const float* plane = latent.data.data();
+  for (int c = 0; c < latent.channels; ++c, plane += latent.pixels()) {
+    f[c] = (1 - ty) * ((1 - tx) * plane[i00] + tx * plane[i01]) +
+           ty * ((1 - tx) * plane[i10] + tx * plane[i11]);
   }
 }
 
