@@ -37,8 +37,9 @@ struct GicpConfig {
   // redkitchen measure 0.34 (median) and 1.8 (p90), which keep weights 0.98 and 0.89; between
   // unrelated points of a frame the median is 19 (weight 0.30).
   double feature_gamma = 1.0 / 16.0;
-  // Feature units^2: the floor of s, the frame-to-frame noise of one surface's latent with the
-  // camera at rest (redkitchen, successive frames: 0.03-0.13).
+  // Feature units^2: the floor of s, the distance between two observations of one surface point
+  // where the latent does not vary around it (redkitchen: 0.03 with the camera at rest, 0.2 as
+  // the median over successive frames, which includes some motion).
   double feature_noise = 0.1;
   bool is_valid(std::string* why = nullptr) const;
 };
