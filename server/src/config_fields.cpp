@@ -160,6 +160,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   using Tracker = core::TrackerConfig;
   const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.pipeline.tracker; });
   tracker.add("constant_velocity", &Tracker::constant_velocity);
+  tracker.add("refresh_features", &Tracker::refresh_features);
   tracker.add("parallel", &Tracker::parallel);
 
   using Preprocess = core::PreprocessConfig;
@@ -208,6 +209,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   gicp.add("use_opacity", &Gicp::use_opacity);
   gicp.add("use_features", &Gicp::use_features);
   gicp.add("feature_gamma", &Gicp::feature_gamma);
+  gicp.add("feature_noise", &Gicp::feature_noise);
 
   using Keyframe = core::KeyframeConfig;
   const auto keyframe = section(f, "tracker.keyframe",

@@ -12,6 +12,7 @@ void GaussianPoints::clear() {
   opacities.clear();
   features.clear();
   feature_dim = 0;
+  feature_spread.clear();
 }
 
 // Only the arrays in use grow: optional opacities and features stay empty when absent, so that
@@ -21,6 +22,7 @@ void GaussianPoints::reserve(std::size_t n) {
   covariances.reserve(n);
   if (!opacities.empty()) opacities.reserve(n);
   if (feature_dim > 0) features.reserve(n * static_cast<std::size_t>(feature_dim));
+  if (!feature_spread.empty()) feature_spread.reserve(n);
 }
 
 bool GaussianPoints::is_consistent(std::string* why) const {
@@ -39,6 +41,9 @@ bool GaussianPoints::is_consistent(std::string* why) const {
       features.size() != n * static_cast<std::size_t>(feature_dim))
     return fail(why, std::to_string(features.size()) + " feature values for " + std::to_string(n) +
                          " points of dimension " + std::to_string(feature_dim));
+  if (!feature_spread.empty() && feature_spread.size() != n)
+    return fail(why, std::to_string(n) + " means but " + std::to_string(feature_spread.size()) +
+                         " feature spreads");
   for (std::size_t i = 0; i < n; ++i) {
     if (!means[i].allFinite()) return fail(why, "mean " + std::to_string(i) + " is not finite");
     if (!covariances[i].allFinite())
@@ -63,6 +68,7 @@ GaussianPoints transformed(const GaussianPoints& points, const Eigen::Isometry3d
   out.opacities = points.opacities;
   out.features = points.features;
   out.feature_dim = points.feature_dim;
+  out.feature_spread = points.feature_spread;
   return out;
 }
 

@@ -34,6 +34,9 @@ bool GicpConfig::is_valid(std::string* why) const {
   if (!(std::isfinite(feature_gamma) && feature_gamma >= 0.0))
     return fail(why, "gicp.feature_gamma must be finite and non-negative, got " +
                          std::to_string(feature_gamma));
+  if (!(std::isfinite(feature_noise) && feature_noise > 0.0))
+    return fail(why, "gicp.feature_noise must be finite and positive, got " +
+                         std::to_string(feature_noise));
   return true;
 }
 

@@ -1,32 +1,85 @@
 #include "fslam/core/tracking/point_features.hpp"
 
 #include <algorithm>
+#include <cassert>
 #include <cmath>
+#include <vector>
 
 namespace fslam::core {
+namespace {
+
+// Bilinear sample of every channel of `latent` at frame pixel uv (clamped at the borders).
+void sample_latent(const PlanarImage& latent, const PinholeCamera& camera,
+                   const Eigen::Vector2d& uv, float* f) {
+  const double sx = static_cast<double>(latent.width) / camera.width;
+  const double sy = static_cast<double>(latent.height) / camera.height;
+  const double x = std::clamp((uv.x() + 0.5) * sx - 0.5, 0.0, latent.width - 1.0);
+  const double y = std::clamp((uv.y() + 0.5) * sy - 0.5, 0.0, latent.height - 1.0);
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const int x1 = std::min(x0 + 1, latent.width - 1), y1 = std::min(y0 + 1, latent.height - 1);
+  const float tx = static_cast<float>(x - x0), ty = static_cast<float>(y - y0);
+  const std::size_t w = static_cast<std::size_t>(latent.width);
+  const std::size_t i00 = y0 * w + x0, i01 = y0 * w + x1, i10 = y1 * w + x0, i11 = y1 * w + x1;
+  const float* plane = latent.data.data();
+  for (int c = 0; c < latent.channels; ++c, plane += latent.pixels()) {
+    f[c] = (1 - ty) * ((1 - tx) * plane[i00] + tx * plane[i01]) +
+           ty * ((1 - tx) * plane[i10] + tx * plane[i11]);
+  }
+}
+
+}  // namespace
 
 void sample_point_features(const PlanarImage& latent, const PinholeCamera& camera,
                            GaussianPoints* points) {
   const int d = latent.channels;
   points->feature_dim = d;
   points->features.assign(points->size() * static_cast<std::size_t>(d), 0.0f);
-  const double sx = static_cast<double>(latent.width) / camera.width;
-  const double sy = static_cast<double>(latent.height) / camera.height;
+  points->feature_spread.assign(points->size(), 0.0f);
+  // One latent cell in frame pixels along u and v.
+  const Eigen::Vector2d cell(static_cast<double>(camera.width) / latent.width,
+                             static_cast<double>(camera.height) / latent.height);
+  const Eigen::Vector2d steps[4] = {
+      {cell.x(), 0.0}, {-cell.x(), 0.0}, {0.0, cell.y()}, {0.0, -cell.y()}};
+  std::vector<float> neighbour(static_cast<std::size_t>(d));
   for (std::size_t i = 0; i < points->size(); ++i) {
     const Eigen::Vector3d p = points->means[i].cast<double>();
     if (!(p.z() > 0)) continue;
     const Eigen::Vector2d uv = camera.project(p);
-    const double x = std::clamp((uv.x() + 0.5) * sx - 0.5, 0.0, latent.width - 1.0);
-    const double y = std::clamp((uv.y() + 0.5) * sy - 0.5, 0.0, latent.height - 1.0);
-    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-    const int x1 = std::min(x0 + 1, latent.width - 1), y1 = std::min(y0 + 1, latent.height - 1);
-    const float tx = static_cast<float>(x - x0), ty = static_cast<float>(y - y0);
     float* f = &points->features[i * static_cast<std::size_t>(d)];
-    for (int c = 0; c < d; ++c) {
-      f[c] = (1 - ty) * ((1 - tx) * latent.at(c, y0, x0) + tx * latent.at(c, y0, x1)) +
-             ty * ((1 - tx) * latent.at(c, y1, x0) + tx * latent.at(c, y1, x1));
+    sample_latent(latent, camera, uv, f);
+    // The spread: mean of ||f(uv + step) - f(uv)||^2 over the four one-cell steps.
+    double spread = 0.0;
+    for (const Eigen::Vector2d& step : steps) {
+      sample_latent(latent, camera, uv + step, neighbour.data());
+      for (int c = 0; c < d; ++c) spread += (neighbour[c] - f[c]) * (neighbour[c] - f[c]);
     }
+    points->feature_spread[i] = static_cast<float>(spread / 4.0);
   }
+}
+
+std::size_t refresh_map_features(const PlanarImage& latent, const PinholeCamera& camera,
+                                 const cv::Mat& depth, const Eigen::Isometry3d& T_world_camera,
+                                 float max_depth_difference, LocalMap* map) {
+  assert(depth.type() == CV_32FC1);
+  if (map->feature_dim() != latent.channels || latent.empty()) return 0;
+  const Eigen::Isometry3d T_camera_world = T_world_camera.inverse();
+  std::size_t refreshed = 0;
+  map->update_features([&](const TargetPoint& point, float* feature) {
+    const Eigen::Vector3d p = T_camera_world * point.mean.cast<double>();
+    if (!(p.z() > 0)) return;
+    const Eigen::Vector2d uv = camera.project(p);
+    // The pixel holding uv, tested in floating point before any conversion to int.
+    if (!(uv.x() >= -0.5 && uv.x() < depth.cols - 0.5 && uv.y() >= -0.5 &&
+          uv.y() < depth.rows - 0.5))
+      return;
+    const int u = static_cast<int>(std::floor(uv.x() + 0.5));
+    const int v = static_cast<int>(std::floor(uv.y() + 0.5));
+    const float z = depth.at<float>(v, u);
+    if (!(z > 0.0f) || !(std::abs(z - p.z()) <= max_depth_difference)) return;
+    sample_latent(latent, camera, uv, feature);
+    ++refreshed;
+  });
+  return refreshed;
 }
 
 }  // namespace fslam::core

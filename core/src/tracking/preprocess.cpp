@@ -429,6 +429,7 @@ void estimate_covariances_knn(const CovarianceConfig& config, GaussianPoints* po
   compact_rows(keep, 1, &points->opacities);
   if (points->feature_dim > 0)
     compact_rows(keep, static_cast<std::size_t>(points->feature_dim), &points->features);
+  compact_rows(keep, 1, &points->feature_spread);
 }
 
 bool preprocess_frame(const RgbdFrame& frame, const PreprocessConfig& config, GaussianPoints* out,

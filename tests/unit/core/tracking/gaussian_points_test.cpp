@@ -51,6 +51,11 @@ TEST(GaussianPoints, ConsistencyChecksSizesAndFiniteness) {
   EXPECT_FALSE(q.is_consistent(&why));
 
   q = p;
+  q.feature_spread = {0.5f};
+  EXPECT_FALSE(q.is_consistent(&why));
+  EXPECT_NE(why.find("feature spreads"), std::string::npos) << why;
+
+  q = p;
   q.means[1].y() = std::numeric_limits<float>::quiet_NaN();
   EXPECT_FALSE(q.is_consistent(&why));
   EXPECT_NE(why.find("mean 1"), std::string::npos) << why;
@@ -90,6 +95,7 @@ TEST(GaussianPoints, TransformedMovesMeansAndRotatesCovariances) {
   p.opacities = {0.25f, 0.75f};
   p.feature_dim = 1;
   p.features = {7.0f, 8.0f};
+  p.feature_spread = {0.5f, 2.0f};
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
   T.translation() = Eigen::Vector3d(0.1, -0.2, 0.3);
@@ -104,6 +110,7 @@ TEST(GaussianPoints, TransformedMovesMeansAndRotatesCovariances) {
   EXPECT_EQ(q.opacities, p.opacities);
   EXPECT_EQ(q.features, p.features);
   EXPECT_EQ(q.feature_dim, 1);
+  EXPECT_EQ(q.feature_spread, p.feature_spread);
 
   const GaussianPoints back = transformed(q, T.inverse());
   for (std::size_t i = 0; i < 2; ++i) {

@@ -378,7 +378,7 @@ TEST_P(GicpBackend, FeaturesResolveASpuriousSurface) {
   GicpConfig config = scene_config();
   config.max_correspondence_distance = 0.1f;
   config.use_opacity = false;
-  config.feature_gamma = 5.0;  // orthogonal unit features: weight exp(-10)
+  config.feature_gamma = 5.0;  // orthogonal unit features, no spread: weight exp(-5 * 2 / 0.1)
 
   config.use_features = true;
   const GicpResult with = run_align(GetParam(), scene.source, target, scene.T_init, config);
@@ -409,6 +409,36 @@ TEST_P(GicpBackend, IdenticalFeaturesLeaveTheSolutionUnchanged) {
   EXPECT_EQ(with.H, without.H);
   EXPECT_EQ(with.cost, without.cost);
   EXPECT_EQ(with.iterations, without.iterations);
+}
+
+// Eq. feat_dist on the scaled distance: every correspondence of a source on its own target
+// weighs exp(-gamma ||df||^2 / (2 spread + noise)), so H is the featureless H times that.
+TEST_P(GicpBackend, FeatureDistanceIsMeasuredInUnitsOfTheSpread) {
+  GaussianPoints target_points = room_points(3000, 71);
+  set_features(&target_points, 2, 0);
+  const KdTreeTarget target = make_target(target_points);
+  GicpConfig config = scene_config();
+  config.feature_gamma = 0.5;
+  config.feature_noise = 0.25;
+  struct Case {
+    float offset;  // in feature channel 1, so ||df||^2 = offset^2
+    float spread;
+  };
+  // 1 / 0.25 and 4 / (2 * 0.375 + 0.25): the same scaled distance 4, the same weight exp(-2).
+  for (const Case c : {Case{1.0f, 0.0f}, Case{2.0f, 0.375f}}) {
+    GaussianPoints source = target_points;
+    for (std::size_t i = 0; i < source.size(); ++i) source.features[2 * i + 1] = c.offset;
+    source.feature_spread.assign(source.size(), c.spread);
+    config.use_features = true;
+    const LinearSystem with =
+        run_linearize(GetParam(), source, target, Eigen::Isometry3d::Identity(), config);
+    config.use_features = false;
+    const LinearSystem without =
+        run_linearize(GetParam(), source, target, Eigen::Isometry3d::Identity(), config);
+    ASSERT_EQ(with.inliers, source.size());
+    EXPECT_LT((with.H - std::exp(-2.0) * without.H).norm(), 1e-9 * without.H.norm())
+        << "offset " << c.offset << ", spread " << c.spread;
+  }
 }
 
 TEST_P(GicpBackend, LowOpacityTargetPointsLoseInfluence) {
@@ -581,6 +611,7 @@ TEST(GicpConfigValidation, ExplainsEachBadField) {
       {[](GicpConfig* c) { c->rotation_epsilon = -1.0; }, "rotation_epsilon"},
       {[](GicpConfig* c) { c->lm_lambda = -1e-3; }, "lm_lambda"},
       {[](GicpConfig* c) { c->feature_gamma = INFINITY; }, "feature_gamma"},
+      {[](GicpConfig* c) { c->feature_noise = 0.0; }, "feature_noise"},
   };
   for (const Case& c : cases) {
     GicpConfig config;

@@ -239,6 +239,31 @@ TEST(LocalMap, CarriesFeaturesAndOpacities) {
   EXPECT_FALSE(plain.points().has_features());
 }
 
+TEST(LocalMap, UpdateFeaturesRewritesTheRowsOfStoredPoints) {
+  LocalMap map(wide_config());
+  GaussianPoints cloud = random_cloud(500, 0.0f, 1.0f, 11);
+  add_attributes(&cloud, 1.0f);
+  map.insert(cloud, Eigen::Vector3f::Zero());
+  // Retag the points with x < 0.5; the others and every mean stay as they were.
+  std::size_t visited = 0;
+  map.update_features([&](const TargetPoint& p, float* feature) {
+    ++visited;
+    ASSERT_EQ(feature[0], p.mean.x());
+    if (p.mean.x() < 0.5f) feature[3] = 2.0f;
+  });
+  EXPECT_EQ(visited, map.size());
+  const GaussianPoints all = map.points();
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    const float* f = all.feature(i);
+    ASSERT_EQ(Eigen::Vector3f(f[0], f[1], f[2]), all.means[i]);
+    ASSERT_EQ(f[3], all.means[i].x() < 0.5f ? 2.0f : 1.0f);
+  }
+
+  LocalMap plain(wide_config());
+  plain.insert(random_cloud(100, 0.0f, 1.0f, 12), Eigen::Vector3f::Zero());
+  plain.update_features([](const TargetPoint&, float*) { FAIL() << "a map without features"; });
+}
+
 TEST(LocalMap, FeatureStorageIsCompactedAsVoxelsDrop) {
   LocalMapConfig config;
   config.radius = 1.5f;

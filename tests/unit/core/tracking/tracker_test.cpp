@@ -118,6 +118,57 @@ TEST_F(TrackerOnSynthRoom, KeyframeRuleOnConstructedMotions) {
   EXPECT_EQ(tracker.keyframe_count(), 3u);
 }
 
+// Constant latents, 1 for the first keyframe and 2 for the second, 7 cm later: with the refresh
+// every map point the second keyframe sees carries 2, without it those of the first keep 1.
+TEST_F(TrackerOnSynthRoom, KeyframesRefreshTheFeaturesOfTheMapPointsTheySee) {
+  const Eigen::Isometry3d T0 = (*trajectory_)[0].T_world_camera;
+  const Eigen::Isometry3d T1 = T0 * Eigen::Translation3d(0.07, 0.0, 0.0);
+  const RgbdFrame f0 = frame_at(T0, 0), f1 = frame_at(T1, 1);
+  const int stride = config().preprocess.stride;
+  auto latent = [&](float value) {
+    return PlanarImage(f0.camera.width / stride, f0.camera.height / stride, 3, value);
+  };
+  // Map points the second keyframe sees, as refresh_map_features decides it.
+  auto seen_by_f1 = [&](const Eigen::Vector3f& mean_world) {
+    const Eigen::Vector3d p = T1.inverse() * mean_world.cast<double>();
+    if (!(p.z() > 0)) return false;
+    const Eigen::Vector2d uv = f1.camera.project(p);
+    const int u = static_cast<int>(std::lround(uv.x())), v = static_cast<int>(std::lround(uv.y()));
+    if (u < 0 || v < 0 || u >= f1.depth.cols || v >= f1.depth.rows) return false;
+    const float z = f1.depth.at<float>(v, u);
+    return z > 0.0f && std::abs(z - p.z()) <= config().gicp.max_correspondence_distance;
+  };
+  for (bool refresh : {true, false}) {
+    TrackerConfig c = config();
+    c.refresh_features = refresh;
+    Tracker tracker(c);
+    tracker.set_initial_pose(T0);
+    TrackingResult result;
+    std::string why;
+    const PlanarImage l0 = latent(1.0f), l1 = latent(2.0f);
+    ASSERT_TRUE(tracker.track(f0, &result, &why, &l0)) << why;
+    ASSERT_TRUE(tracker.track(f1, &result, &why, &l1)) << why;
+    ASSERT_TRUE(result.keyframe);
+    const GaussianPoints map = tracker.local_map().points();
+    ASSERT_EQ(map.feature_dim, 3);
+    std::size_t seen = 0, first = 0;
+    for (std::size_t i = 0; i < map.size(); ++i) {
+      const bool seen_again = seen_by_f1(map.means[i]);
+      seen += seen_again ? 1 : 0;
+      first += map.feature(i)[0] == 1.0f ? 1 : 0;
+      if (refresh && seen_again) {
+        ASSERT_EQ(map.feature(i)[0], 2.0f) << "point " << i;
+      }
+    }
+    EXPECT_GT(seen, map.size() / 2);  // the two views overlap almost entirely
+    if (refresh) {
+      EXPECT_LT(first, map.size() / 10) << "few points are seen by the first view only";
+    } else {
+      EXPECT_GT(first, map.size() / 2) << "the first keyframe's points keep its features";
+    }
+  }
+}
+
 TEST_F(TrackerOnSynthRoom, HalfTheDepthMissingStillTracks) {
   Tracker tracker(config());
   tracker.set_initial_pose((*trajectory_)[0].T_world_camera);

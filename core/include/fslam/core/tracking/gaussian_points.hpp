@@ -18,11 +18,16 @@ struct GaussianPoints {
   std::vector<float> opacities;              // [N] in [0, 1], optional (empty = all 1)
   std::vector<float> features;               // [N * feature_dim], optional (empty = none)
   int feature_dim = 0;
+  // [N] feature units^2, optional (empty = none): how far the latent moves one latent cell away
+  // from the point (sample_point_features), the feature distance that a correspondence off by
+  // about one lattice cell costs. Eq. feat_dist measures the distance in units of it.
+  std::vector<float> feature_spread;
 
   std::size_t size() const { return means.size(); }
   bool empty() const { return means.empty(); }
   bool has_opacities() const { return !opacities.empty(); }
   bool has_features() const { return feature_dim > 0 && !features.empty(); }
+  bool has_feature_spread() const { return !feature_spread.empty(); }
   const float* feature(std::size_t i) const { return features.data() + i * feature_dim; }
   void clear();
   void reserve(std::size_t n);

@@ -71,6 +71,7 @@ struct GicpFactorContext {
   bool use_opacity = false;
   bool use_features = false;  // config on, and source and target carry features of equal size
   double feature_gamma = 0.0;
+  double feature_noise = 1.0;
   int feature_dim = 0;
 };
 
@@ -91,6 +92,7 @@ GicpFactorContext make_gicp_factor_context(const GaussianPoints& source, const T
   ctx.use_features = config.use_features && source.has_features() && target.feature_dim() > 0 &&
                      target.feature_dim() == source.feature_dim;
   ctx.feature_gamma = config.feature_gamma;
+  ctx.feature_noise = config.feature_noise;
   ctx.feature_dim = ctx.use_features ? source.feature_dim : 0;
   return ctx;
 }
@@ -145,8 +147,12 @@ inline void accumulate_gicp_factor(const GaussianPoints& source, std::size_t i,
       const float diff = fs[k] - ft[k];
       feature_distance += diff * diff;
     }
-    // Eq. feat_dist.
-    weight *= std::exp(-ctx.feature_gamma * static_cast<double>(feature_distance));
+    // Eq. feat_dist, the distance scaled by the spread expected of a correct correspondence: the
+    // points are up to a lattice cell apart, so their latents differ by about the spread of each;
+    // the target's is taken equal to the source's (same surface, a nearby view).
+    const double spread = source.has_feature_spread() ? source.feature_spread[i] : 0.0;
+    const double scale = 2.0 * spread + ctx.feature_noise;
+    weight *= std::exp(-ctx.feature_gamma * static_cast<double>(feature_distance) / scale);
   }
 
   const Eigen::Matrix<double, 6, 3> JtM = J.transpose() * M;

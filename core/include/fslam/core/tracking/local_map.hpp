@@ -57,6 +57,14 @@ class LocalMap {
   std::size_t feature_rows_stored() const {
     return feature_dim_ > 0 ? features_.size() / static_cast<std::size_t>(feature_dim_) : 0;
   }
+  // Calls visit(const TargetPoint&, float* feature) with each stored point and its writable
+  // feature row ([feature_dim]); nothing when the map has no features. Not safe beside readers.
+  template <typename Visit>
+  void update_features(Visit&& visit) {
+    if (feature_dim_ == 0) return;
+    for (const Voxel& voxel : voxels_)
+      for (const TargetPoint& p : voxel.points) visit(p, features_.data() + p.feature_offset);
+  }
   void clear();
   // Every stored point, for inspection, tests and visualisation.
   GaussianPoints points() const;

@@ -46,6 +46,11 @@ struct TrackerConfig {
   // (0.3 mm -> 9 cm in six frames), while starting from T_{k-1} stayed below 0.4 mm
   // (docs/tracking.md).
   bool constant_velocity = false;
+  // Each keyframe overwrites the features of the map points it sees with its own latent there
+  // (refresh_map_features). Off: a point keeps the feature of the first keyframe that stored it,
+  // and since the latents change with viewpoint, eq. feat_dist then favours the newest keyframes'
+  // points (docs/tracking.md). Geometry is never refreshed.
+  bool refresh_features = true;
   bool parallel = false;          // TBB reduction instead of the serial one
   bool is_valid(std::string* why = nullptr) const;
 };
@@ -78,7 +83,7 @@ class Tracker {
   // Tracks one frame. The first frame defines the world (its pose is T_world_camera_initial).
   // Returns false with `why` only for bad input; tracking failure is a result state, not an error.
   // latent (optional, [D, h, w] over the frame): the points' features for eq. feat_gicp; keyframes
-  // then carry them into the local map as targets.
+  // then carry them into the local map as targets and refresh those of the map points they see.
   bool track(const RgbdFrame& frame, TrackingResult* result, std::string* why,
              const PlanarImage* latent = nullptr);
 
