@@ -107,21 +107,6 @@ struct Images {
 
 const double kBackground[3] = {0.2, 0.1, 0.3};
 
-// The float falloff exponential against the library's exp in double, over the range of powers a
-// footprint can have (power_floor > -6) and beyond.
-TEST(Rasterizer, FalloffExpIsWithinAboutOneUlp) {
-  double worst = 0.0;
-  for (int k = 0; k <= 200000; ++k) {
-    const float x = -20.0f * static_cast<float>(k) / 200000.0f;
-    const double exact = std::exp(static_cast<double>(x));
-    worst = std::max(worst, std::abs(math::falloff_exp(x) - exact) / exact);
-  }
-  EXPECT_LT(worst, 3e-7);  // float's ulp is 1.2e-7 relative
-  EXPECT_EQ(math::falloff_exp(0.0f), 1.0f);
-  EXPECT_EQ(math::falloff_exp(-200.0f), 0.0f);
-  EXPECT_EQ(math::falloff_exp(-0.5), std::exp(-0.5));  // the double reference is the library's
-}
-
 TEST(Rasterizer, TiledForwardEqualsPerPixelReference) {
   const Scene scene = make_scene(40, 1, 3, true, 7);
   const auto cam = make_camera(45, 37, 0.1);  // not a multiple of the tile size

@@ -4,8 +4,7 @@
 // Matrices are row-major T[9]; quaternions are w, x, y, z.
 #pragma once
 
-#include <math.h>    // sqrt, exp, log: device functions under nvcc, the C library on the host
-#include <string.h>  // memcpy (also in device code)
+#include <math.h>  // sqrt, exp, log: device functions under nvcc, the C library on the host
 
 #include "fslam/core/math/host_device.hpp"
 
@@ -502,28 +501,6 @@ FSLAM_HD void project_gaussian_backward(const T quat[4], T filter_variance, cons
 }
 
 // ---------------------------------------------------------------- per-pixel compositing
-// exp(x) of a Gaussian's falloff, x in [power_floor, 0] (power_floor >= -2 ln 255 / 2 > -6):
-// x = n ln 2 + r with |r| <= ln 2 / 2, e^r by its Taylor series to r^6 (relative error below
-// 2e-7, about one float ulp) and 2^n from the exponent bits. Inline arithmetic, the same on the
-// host and the device, instead of a library call per splat-pixel pair (the rasteriser's largest
-// single cost after its own loops: 9 % of fslam run's time, profiled).
-FSLAM_HD float falloff_exp(float x) {
-  const float y = x * 1.44269504f;                      // x / ln 2
-  const int n = static_cast<int>(y < 0.0f ? y - 0.5f : y + 0.5f);  // nearest integer
-  const float nf = static_cast<float>(n);
-  const float r = (x - nf * 0.693145751953125f) - nf * 1.428606765330187e-06f;  // Cody-Waite
-  const float p =
-      1.0f + r * (1.0f + r * (0.5f + r * (1.0f / 6.0f + r * (1.0f / 24.0f + r * (1.0f / 120.0f +
-                                                                               r * (1.0f / 720.0f))))));
-  if (n < -126) return 0.0f;  // below the normal range: far outside any footprint
-  const int bits = (n + 127) << 23;
-  float two_n;
-  memcpy(&two_n, &bits, sizeof two_n);
-  return p * two_n;
-}
-// The double-precision reference keeps the library's exp.
-FSLAM_HD double falloff_exp(double x) { return exp(x); }
-
 // Alpha of a projected Gaussian at pixel (px, py); 0 when below kAlphaMin (skipped).
 template <typename T>
 FSLAM_HD T splat_alpha(const ProjectedGaussian<T>& g, T px, T py, T* gaussian) {
@@ -531,7 +508,7 @@ FSLAM_HD T splat_alpha(const ProjectedGaussian<T>& g, T px, T py, T* gaussian) {
   const T power = T(-0.5) * (g.conic[0] * dx * dx + g.conic[2] * dy * dy) - g.conic[1] * dx * dy;
   // Outside the footprint: skip before the exponential (most pairs of a tile list).
   if (power > T(0) || power < g.power_floor) return T(0);
-  *gaussian = falloff_exp(power);
+  *gaussian = exp(power);
   const T alpha = g.opacity * *gaussian;
   if (alpha < T(kAlphaMin)) return T(0);
   return alpha < T(kAlphaMax) ? alpha : T(kAlphaMax);
