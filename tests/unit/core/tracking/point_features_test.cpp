@@ -8,12 +8,19 @@
 namespace fslam::core {
 namespace {
 
-TEST(PointFeatures, PointsTakeTheLatentWhereTheyProject) {
-  PlanarImage latent(6, 4, 2);  // [2, 4, 6]: value c * 100 + y * 10 + x
+// [2, 4, 6] latent with value c * 100 + y * 10 + x, and a 60x40 camera: 10 frame pixels per cell.
+PlanarImage ramp_latent() {
+  PlanarImage latent(6, 4, 2);
   for (int c = 0; c < 2; ++c)
     for (int y = 0; y < 4; ++y)
       for (int x = 0; x < 6; ++x) latent.at(c, y, x) = static_cast<float>(c * 100 + y * 10 + x);
-  const PinholeCamera camera{50.0, 50.0, 29.5, 19.5, 60, 40};  // 10 frame pixels per latent cell
+  return latent;
+}
+PinholeCamera ramp_camera() { return PinholeCamera{50.0, 50.0, 29.5, 19.5, 60, 40}; }
+
+TEST(PointFeatures, PointsTakeTheLatentWhereTheyProject) {
+  const PlanarImage latent = ramp_latent();
+  const PinholeCamera camera = ramp_camera();
   auto at_pixel = [&](double u, double v, double z) {
     return Eigen::Vector3f(static_cast<float>((u - camera.cx) * z / camera.fx),
                            static_cast<float>((v - camera.cy) * z / camera.fy), static_cast<float>(z));
@@ -56,11 +63,8 @@ TEST(PointFeatures, AUniformLatentHasNoSpread) {
 }
 
 TEST(PointFeatures, KeyframeRefreshesOnlyTheMapPointsItSees) {
-  PlanarImage latent(6, 4, 2);  // [2, 4, 6]: value c * 100 + y * 10 + x
-  for (int c = 0; c < 2; ++c)
-    for (int y = 0; y < 4; ++y)
-      for (int x = 0; x < 6; ++x) latent.at(c, y, x) = static_cast<float>(c * 100 + y * 10 + x);
-  const PinholeCamera camera{50.0, 50.0, 29.5, 19.5, 60, 40};  // 10 frame pixels per latent cell
+  const PlanarImage latent = ramp_latent();
+  const PinholeCamera camera = ramp_camera();
   // The keyframe sees a wall at 2 m, except in columns 40.. where the depth is missing.
   cv::Mat depth(40, 60, CV_32FC1, cv::Scalar(2.0f));
   depth.colRange(40, 60).setTo(0.0f);
