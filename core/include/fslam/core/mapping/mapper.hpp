@@ -52,7 +52,7 @@ struct MapperConfig {
   // Post-trajectory refinement renders at this fraction of the input size when it is above
   // training_scale (0: at training_scale); each keyframe then keeps its colour and depth at
   // this size, 0.54 MB per 640x480 keyframe at 0.5. Measured on redkitchen 0-299 with
-  // --refine 2000: 23.73 dB held-out against 22.83 at training_scale (docs/mapping.md).
+  // --refine 2000: 23.73-23.80 dB held-out against 22.83 at training_scale (docs/mapping.md).
   double refine_scale = 0.5;
   // Insertion: lattice stride on the training-resolution image where the map does not explain
   // the keyframe: accumulated opacity below new_alpha, or the rendered surface farther than the

@@ -14,7 +14,7 @@ constexpr float kAlphaMin = 1.0f / 255.0f;    // splat-pixel pairs below are ski
 constexpr float kAlphaMax = 0.99f;            // alpha is clamped here (3DGS)
 constexpr float kTransmittanceMin = 1e-4f;    // a pixel stops compositing below this
 constexpr float kLowPassVariance = 0.3f;      // pixels^2 added to every 2D covariance (3DGS)
-constexpr float kFovClampFactor = 1.3f;       // x/z, y/z clamped to 1.3x the view in the Jacobian (clamp_to_view)
+constexpr float kFovClampFactor = 1.3f;       // Jacobian's x/z, y/z within 1.3x the view (clamp_to_view)
 
 // A view for the renderer: world-to-camera transform and pinhole intrinsics.
 template <typename T>
@@ -390,7 +390,7 @@ FSLAM_HD void project_gaussian_backward(const T quat[4], T filter_variance, cons
       }
     // J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]], tx = x/z (unless clamped).
     T tx = x / z, ty = y / z;
-    bool clamped_x, clamped_y;
+    bool clamped_x, clamped_y;  // the same as p.clamp_x, p.clamp_y
     clamp_to_view(cam, &tx, &ty, &clamped_x, &clamped_y);
     g_mean_cam[2] += -g_J[0] * cam.fx / (z * z) - g_J[4] * cam.fy / (z * z);
     // J02 = -fx tx / z: with tx = x / z (unclamped) this is -fx x / z^2.
