@@ -93,9 +93,10 @@ TEST_F(SynthPipeline, RunTracksMapsAndResumes) {
   EXPECT_LT(m["ate"]["rmse_m"].get<double>(), 0.01);            // metres
   EXPECT_GT(m["held_out"]["frames"].get<int>(), 3);
   EXPECT_GT(m["held_out"]["psnr_db"].get<double>(), 24.0);      // measured 27-28 dB
-  // Centimetres: 3.06 measured with the online learning rates (2.89 with 3DGS's, 3.34 with
-  // twice this means rate; docs/mapping.md).
-  EXPECT_LT(m["held_out"]["depth_l1_cm"].get<double>(), 3.5);
+  // Centimetres, the expected depth D and the median depth: 3.25 and 3.16 measured at 9198606
+  // (docs/evaluation.md says which is which).
+  EXPECT_LT(m["held_out"]["depth_l1_cm"].get<double>(), 3.75);
+  EXPECT_LT(m["held_out"]["depth_l1_median_cm"].get<double>(), 3.5);
   EXPECT_GT(m["keyframes"]["frames"].get<int>(), 3);
   core::GaussianMap map;
   std::string why;
