@@ -194,6 +194,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
                              [](auto& c) -> auto& { return c.pipeline.tracker.local_map; });
   local.add("voxel_size", &LocalMap::voxel_size);
   local.add("min_point_distance", &LocalMap::min_point_distance);
+  local.add("fuse", &LocalMap::fuse);
   local.add("max_points_per_voxel", &LocalMap::max_points_per_voxel);
   local.add("radius", &LocalMap::radius);
 

@@ -246,7 +246,12 @@ std::size_t LocalMap::insert(const GaussianPoints& points_world,
     const Eigen::Vector3f& mean = points_world.means[i];
     if (!mean.allFinite()) continue;
     // Thinning: the new point must keep min_point_distance to every stored point, new ones too.
-    if (min_distance > 0.0f && nearest(mean, min_distance) != nullptr) continue;
+    if (min_distance > 0.0f) {
+      if (const TargetPoint* stored = nearest(mean, min_distance)) {
+        if (config_.fuse) fuse_into(stored, mean, points_world.covariances[i]);
+        continue;
+      }
+    }
     Voxel& voxel = find_or_add_voxel(key_of(mean));
     if (voxel.points.size() >= max_per_voxel) continue;
     TargetPoint p;
@@ -265,6 +270,47 @@ std::size_t LocalMap::insert(const GaussianPoints& points_world,
   }
   drop_voxels_outside(camera_position_world);
   return inserted;
+}
+
+bool LocalMap::fuse_into(const TargetPoint* stored, const Eigen::Vector3f& mean,
+                         const Eigen::Matrix3f& covariance) {
+  // Product of the two Gaussians: information adds, the mean is information-weighted. Repeated
+  // observations of a surface point shrink its covariance and average the depth noise out.
+  const Eigen::Matrix3f info_stored = stored->covariance.inverse();
+  const Eigen::Matrix3f info_new = covariance.inverse();
+  const Eigen::Matrix3f fused_cov = (info_stored + info_new).inverse();
+  const Eigen::Vector3f fused_mean = fused_cov * (info_stored * stored->mean + info_new * mean);
+  if (!fused_cov.allFinite() || !fused_mean.allFinite()) return false;
+
+  const VoxelKey from_key = key_of(stored->mean);
+  const VoxelKey to_key = key_of(fused_mean);
+  Voxel* from = const_cast<Voxel*>(find_voxel(from_key));
+  assert(from != nullptr);
+  const std::size_t j = static_cast<std::size_t>(stored - from->points.data());
+  assert(j < from->points.size());
+  if (to_key == from_key) {
+    from->points[j].mean = fused_mean;
+    from->points[j].covariance = fused_cov;
+    for (int a = 0; a < 3; ++a) from->xyz[a * from->capacity + j] = fused_mean[a];
+    return true;
+  }
+  // The fused mean crossed into a neighbouring voxel: the point moves there.
+  Voxel& to = find_or_add_voxel(to_key);  // may reallocate voxels_, so `from` is found again
+  if (to.points.size() >= static_cast<std::size_t>(config_.max_points_per_voxel)) return false;
+  from = const_cast<Voxel*>(find_voxel(from_key));
+  TargetPoint moved = from->points[j];
+  moved.mean = fused_mean;
+  moved.covariance = fused_cov;
+  const std::size_t last = from->points.size() - 1;
+  if (j != last) {  // the last point takes the freed slot, in both layouts
+    from->points[j] = from->points[last];
+    for (int a = 0; a < 3; ++a) from->xyz[a * from->capacity + j] = from->xyz[a * from->capacity + last];
+  }
+  for (int a = 0; a < 3; ++a) from->xyz[a * from->capacity + last] = kFarAway;
+  from->points.pop_back();
+  from->count = static_cast<std::uint32_t>(from->points.size());
+  add_point(&to, moved);
+  return true;
 }
 
 void LocalMap::drop_voxels_outside(const Eigen::Vector3f& centre_world) {

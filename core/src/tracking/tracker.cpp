@@ -106,12 +106,13 @@ bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string*
   result->timings.preprocess_ms = t1 - t0;
 
   auto add_keyframe = [&](const Eigen::Isometry3d& T_world_camera) {
-    // The keyframe re-observes the map's features before adding its own points; a stored point
-    // within the correspondence gate of the keyframe's depth is the surface the keyframe sees.
+    // The keyframe's points are fused into the map (moving the points they re-observe), then
+    // the keyframe re-observes the map's features; a stored point within the correspondence
+    // gate of the keyframe's depth is the surface the keyframe sees.
+    map_.insert(transformed(source, T_world_camera), T_world_camera.translation().cast<float>());
     if (config_.refresh_features && latent != nullptr && !latent->empty())
       refresh_map_features(*latent, frame.camera, frame.depth, T_world_camera,
                            config_.gicp.max_correspondence_distance, &map_);
-    map_.insert(transformed(source, T_world_camera), T_world_camera.translation().cast<float>());
     keyframes_.push_back({frame.id, T_world_camera, source});
     while (keyframes_.size() > static_cast<std::size_t>(config_.loss.recovery_keyframes) + 1)
       keyframes_.pop_front();

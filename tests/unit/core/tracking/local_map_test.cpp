@@ -131,6 +131,7 @@ TEST(LocalMap, NearestIsNullBeyondMaxDistance) {
 TEST(LocalMap, ThinningBoundsDensity) {
   LocalMapConfig config;
   config.min_point_distance = 0.01f;
+  config.fuse = false;  // fusion moves stored points; without it the spacing is exact
   config.radius = 100.0f;
   LocalMap map(config);
   const GaussianPoints dense = plane_grid(Eigen::Vector2f(0.05f, 0.0f), 0.15f, 0.002f);  // 2 mm
@@ -267,6 +268,7 @@ TEST(LocalMap, UpdateFeaturesRewritesTheRowsOfStoredPoints) {
 TEST(LocalMap, FeatureStorageIsCompactedAsVoxelsDrop) {
   LocalMapConfig config;
   config.radius = 1.5f;
+  config.fuse = false;  // the rows hold each point's mean, which fusion would move
   LocalMap map(config);
   for (int k = 0; k < 30; ++k) {
     // Each keyframe sees a new patch 3 m from the last, so the previous one is dropped.
@@ -312,6 +314,103 @@ TEST(LocalMap, FeatureDimensionMismatchDropsFeatures) {
   EXPECT_EQ(map.size(), 0u);
   map.insert(b, Eigen::Vector3f::Zero());
   EXPECT_EQ(map.feature_dim(), 2);
+}
+
+GaussianPoints one_point(const Eigen::Vector3f& mean, const Eigen::Matrix3f& covariance) {
+  GaussianPoints cloud;
+  cloud.means = {mean};
+  cloud.covariances = {covariance};
+  return cloud;
+}
+
+TEST(LocalMap, ARepeatedObservationIsFusedAsTheProductOfTheGaussians) {
+  LocalMapConfig config;  // min_point_distance 1 cm, fuse on
+  LocalMap map(config);
+  // Two discs seen from different sides: a plane z = 1 (normal sigma 1 mm) and a tilted one.
+  const Eigen::Vector3f a(0.05f, 0.05f, 1.000f), b(0.052f, 0.049f, 1.006f);
+  const Eigen::Matrix3f cov_a = Eigen::Vector3f(1e-2f, 1e-2f, 1e-6f).asDiagonal();
+  const Eigen::Matrix3f R = Eigen::AngleAxisf(0.5f, Eigen::Vector3f::UnitX()).toRotationMatrix();
+  const Eigen::Matrix3f cov_b = R * Eigen::Vector3f(4e-2f, 4e-2f, 4e-6f).asDiagonal() * R.transpose();
+  ASSERT_EQ(map.insert(one_point(a, cov_a), Eigen::Vector3f::Zero()), 1u);
+  EXPECT_EQ(map.insert(one_point(b, cov_b), Eigen::Vector3f::Zero()), 0u);  // fused, not added
+  ASSERT_EQ(map.size(), 1u);
+  // The product by hand, in double.
+  const Eigen::Matrix3d ia = cov_a.cast<double>().inverse(), ib = cov_b.cast<double>().inverse();
+  const Eigen::Matrix3d cov = (ia + ib).inverse();
+  const Eigen::Vector3d mean = cov * (ia * a.cast<double>() + ib * b.cast<double>());
+  const GaussianPoints stored = map.points();
+  EXPECT_LT((stored.means[0].cast<double>() - mean).norm(), 1e-6);  // metres
+  EXPECT_LT((stored.covariances[0].cast<double>() - cov).norm(), 1e-3 * cov.norm());
+  // The fused point is more certain along both discs' normals than either observation.
+  const Eigen::Vector3d n_b = R.col(2).cast<double>();
+  EXPECT_LT(n_b.dot(cov * n_b), n_b.dot(cov_b.cast<double>() * n_b));
+  EXPECT_LT(cov(2, 2), cov_a(2, 2));
+  // Found where it now is, exactly.
+  float d2 = -1.0f;
+  ASSERT_NE(map.nearest(stored.means[0], 0.0f, &d2), nullptr);
+  EXPECT_EQ(d2, 0.0f);
+
+  // Fusion off: the first observation stays as it was.
+  config.fuse = false;
+  LocalMap first(config);
+  first.insert(one_point(a, cov_a), Eigen::Vector3f::Zero());
+  first.insert(one_point(b, cov_b), Eigen::Vector3f::Zero());
+  ASSERT_EQ(first.size(), 1u);
+  EXPECT_EQ(first.points().means[0], a);
+  EXPECT_EQ(first.points().covariances[0], cov_a);
+}
+
+TEST(LocalMap, AFusedPointThatCrossesIntoTheNextVoxelMovesThere) {
+  LocalMapConfig config;
+  config.radius = 100.0f;
+  LocalMap map(config);
+  // Stored at x = 9.95 cm (voxel 0), observed again at 10.4 cm with 100x the certainty: the
+  // fused mean (~10.4 cm) lies in voxel 1, with its feature row and opacity.
+  const Eigen::Matrix3f loose = Eigen::Matrix3f::Identity() * 1e-4f;
+  GaussianPoints first = one_point(Eigen::Vector3f(0.0995f, 0.05f, 0.05f), loose);
+  first.means.push_back(Eigen::Vector3f(0.03f, 0.05f, 0.05f));  // a neighbour in voxel 0
+  first.covariances.push_back(loose);
+  add_attributes(&first, 7.0f);
+  ASSERT_EQ(map.insert(first, Eigen::Vector3f::Zero()), 2u);
+  GaussianPoints again = one_point(Eigen::Vector3f(0.104f, 0.05f, 0.05f), loose * 0.01f);
+  add_attributes(&again, 9.0f);
+  EXPECT_EQ(map.insert(again, Eigen::Vector3f::Zero()), 0u);
+  ASSERT_EQ(map.size(), 2u);
+  EXPECT_EQ(map.voxel_count(), 2u);
+  const Eigen::Vector3f fused = (Eigen::Vector3f(0.0995f, 0.05f, 0.05f) + 100.0f * again.means[0]) / 101.0f;
+  float d2 = -1.0f;
+  const TargetPoint* p = map.nearest(Eigen::Vector3f(0.15f, 0.05f, 0.05f), 0.1f, &d2);
+  ASSERT_NE(p, nullptr);
+  EXPECT_NEAR(p->mean.x(), fused.x(), 1e-6f);
+  EXPECT_NEAR(p->covariance(0, 0), 1e-4f / 101.0f, 1e-9f);
+  EXPECT_EQ(map.feature(*p)[3], 7.0f);  // the stored point's feature row goes with it
+  EXPECT_FLOAT_EQ(p->opacity, 0.07f);
+  // The point left behind in voxel 0 is still found, and nothing else is.
+  const TargetPoint* q = map.nearest(Eigen::Vector3f(0.0f, 0.05f, 0.05f), 0.05f);
+  ASSERT_NE(q, nullptr);
+  EXPECT_EQ(q->mean.x(), 0.03f);
+  EXPECT_EQ(map.nearest(Eigen::Vector3f(0.0995f, 0.05f, 0.05f), 0.004f), nullptr);
+}
+
+TEST(LocalMap, NearestEqualsBruteForceAfterFusion) {
+  LocalMapConfig config;
+  config.radius = 100.0f;
+  config.min_point_distance = 0.02f;  // many fusions, many of them across voxel faces
+  LocalMap map(config);
+  for (std::uint32_t k = 0; k < 6; ++k) map.insert(random_cloud(3000, 0.0f, 0.4f, 20 + k), {});
+  const std::vector<Eigen::Vector3f> stored = map.points().means;
+  ASSERT_EQ(stored.size(), map.size());
+  const GaussianPoints queries = random_cloud(1000, -0.05f, 0.45f, 40);
+  for (const Eigen::Vector3f& q : queries.means) {
+    const BruteForce expected = brute_force(stored, q);
+    const TargetPoint* found = map.nearest(q, 0.05f);
+    if (expected.squared_distance <= 0.05f * 0.05f) {
+      ASSERT_NE(found, nullptr) << q.transpose();
+      EXPECT_EQ(found->mean, expected.mean);
+    } else {
+      EXPECT_EQ(found, nullptr);
+    }
+  }
 }
 
 TEST(LocalMap, ConcurrentReadersSeeTheSameAnswers) {

@@ -128,12 +128,14 @@ TEST_F(TrackerOnSynthRoom, KeyframesRefreshTheFeaturesOfTheMapPointsTheySee) {
   auto latent = [&](float value) {
     return PlanarImage(f0.camera.width / stride, f0.camera.height / stride, 3, value);
   };
-  // Map points the second keyframe sees, as refresh_map_features decides it.
-  auto seen_by_f1 = [&](const Eigen::Vector3f& mean_world) {
-    const Eigen::Vector3d p = T1.inverse() * mean_world.cast<double>();
+  // Map points the second keyframe sees from its tracked pose, as refresh_map_features decides
+  // it (from the true pose, a point on a depth edge may round to the pixel beside it).
+  auto seen_by_f1 = [&](const Eigen::Vector3f& mean_world, const Eigen::Isometry3d& T_tracked) {
+    const Eigen::Vector3d p = T_tracked.inverse() * mean_world.cast<double>();
     if (!(p.z() > 0)) return false;
     const Eigen::Vector2d uv = f1.camera.project(p);
-    const int u = static_cast<int>(std::lround(uv.x())), v = static_cast<int>(std::lround(uv.y()));
+    const int u = static_cast<int>(std::floor(uv.x() + 0.5));
+    const int v = static_cast<int>(std::floor(uv.y() + 0.5));
     if (u < 0 || v < 0 || u >= f1.depth.cols || v >= f1.depth.rows) return false;
     const float z = f1.depth.at<float>(v, u);
     return z > 0.0f && std::abs(z - p.z()) <= config().gicp.max_correspondence_distance;
@@ -153,7 +155,7 @@ TEST_F(TrackerOnSynthRoom, KeyframesRefreshTheFeaturesOfTheMapPointsTheySee) {
     ASSERT_EQ(map.feature_dim, 3);
     std::size_t seen = 0, first = 0;
     for (std::size_t i = 0; i < map.size(); ++i) {
-      const bool seen_again = seen_by_f1(map.means[i]);
+      const bool seen_again = seen_by_f1(map.means[i], result.T_world_camera);
       seen += seen_again ? 1 : 0;
       first += map.feature(i)[0] == 1.0f ? 1 : 0;
       if (refresh && seen_again) {

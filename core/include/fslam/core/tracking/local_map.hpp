@@ -17,6 +17,8 @@ struct LocalMapConfig {
   float voxel_size = 0.1f;          // metres, hash cell edge; >= max correspondence distance
   float min_point_distance = 0.01f; // metres; a new point closer than this to a stored one is
                                     // not inserted (keeps density bounded)
+  bool fuse = true;  // ... but fused into that stored point (product of the two Gaussians), so
+                     // repeated observations average the sensor noise out; off: the first stays
   int max_points_per_voxel = 27;
   float radius = 4.0f;              // metres; voxels farther than this from the latest keyframe
                                     // camera are dropped after each insertion
@@ -36,7 +38,9 @@ class LocalMap {
   explicit LocalMap(const LocalMapConfig& config = {});
 
   // Adds a keyframe's points (already in world coordinates) and drops voxels outside `radius`
-  // of `camera_position_world`. Returns the number of points actually inserted.
+  // of `camera_position_world`. Returns the number of points actually inserted. With `fuse`, a
+  // point within min_point_distance of a stored one updates it instead (mean and covariance;
+  // opacity and feature row stay, refresh_point_features renews those).
   // The map's feature_dim is set by the first insertion into an empty map; a later insertion
   // with another feature_dim (features present vs absent included) is a programming error that
   // is not fatal: the map drops every feature and tracks on geometry alone until it is empty.
@@ -100,6 +104,10 @@ class LocalMap {
   Voxel& find_or_add_voxel(const VoxelKey& key);
   void rebuild_table(std::size_t min_voxels);
   void add_point(Voxel* voxel, const TargetPoint& point) const;
+  // Fuses the observation (mean, covariance) into `stored`; false when it could not (the fused
+  // mean lies in a full voxel or the covariances are singular), leaving `stored` as it was.
+  bool fuse_into(const TargetPoint* stored, const Eigen::Vector3f& mean,
+                 const Eigen::Matrix3f& covariance);
   void drop_voxels_outside(const Eigen::Vector3f& centre_world);
   void compact_features();
 
