@@ -194,6 +194,7 @@ int run_slam(const RunArgs& args) {
   std::vector<bool> is_keyframe;
   std::vector<Eigen::Isometry3d> eval_poses;  // with --ground-truth-poses: where views are rendered
   std::vector<double> track_ms;
+  std::vector<double> track_features_ms;  // the frame's latent for feature-guided GICP, in track_ms
   std::size_t lost = 0, skipped = 0;
   Progress progress("slam", n);
   auto load_frame = [&](std::size_t i) {
@@ -235,6 +236,7 @@ int run_slam(const RunArgs& args) {
       return fail(why);
     }
     if (i > 0) track_ms.push_back(ms_between(t0, Clock::now()));
+    if (i > 0 && result.timings.features_ms > 0) track_features_ms.push_back(result.timings.features_ms);
     if (result.state == core::TrackingState::lost) {
       ++lost;
       std::fprintf(stderr, "\nframe %lld: %s\n", static_cast<long long>(frame->id),
@@ -372,7 +374,9 @@ int run_slam(const RunArgs& args) {
   metrics["held_out"]["rule"] = "every " + std::to_string(args.eval_every) +
                                 "th non-keyframe frame; never used for training";
   metrics["keyframes"] = keyframes.to_json();
-  metrics["depth_rendering"] = "median depth; pixels with valid sensor depth, holes count fully";
+  metrics["depth_rendering"] =
+      "depth_l1_cm: expected camera-plane depth, depth_l1_median_cm: median depth; pixels with "
+      "valid sensor depth, holes count fully";
   metrics["map"] = {{"gaussians", map.size()},
                     {"keyframes", pipeline.mapper().keyframe_count()},
                     {"optimisation_steps", pipeline.mapper().total_steps()}};
@@ -381,6 +385,7 @@ int run_slam(const RunArgs& args) {
                        {"tracking_wall_s", ms_between(start, tracking_done) / 1000.0},
                        {"refine_s", ms_between(mapping_done, refine_done) / 1000.0},
                        {"tracking_per_frame", timing_json(track_ms)},
+                       {"tracking_features_per_frame", timing_json(track_features_ms)},
                        {"mapping_per_keyframe", timing_json(keyframe_ms)},
                        {"features_per_keyframe", timing_json(features_ms)}};
   metrics["frames"] = {{"tracked", trajectory.size()}, {"lost", lost}, {"skipped", skipped},

@@ -156,6 +156,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   pipeline.add("realtime", &Pipeline::realtime);
   pipeline.add("min_iterations_when_behind", &Pipeline::min_iterations_when_behind);
   pipeline.add("idle_iterations", &Pipeline::idle_iterations);
+  pipeline.add("track_with_features", &Pipeline::track_with_features);
 
   using Tracker = core::TrackerConfig;
   const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.pipeline.tracker; });

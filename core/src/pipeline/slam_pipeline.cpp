@@ -34,8 +34,26 @@ void SlamPipeline::set_initial_pose(const Eigen::Isometry3d& T_world_camera) {
 
 bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
                                  std::string* why, const Eigen::Isometry3d* mapping_pose) {
+  // The frame's latent, one per lattice cell of the tracker's source points (eq. feat_dist).
+  PlanarImage latent;
+  double features_ms = 0.0;
+  if (features_ && config_.track_with_features) {
+    const auto t0 = std::chrono::steady_clock::now();
+    if (!tracking_features_) {
+      tracking_features_ = LatentFeatures::create(config_.features, why);
+      if (!tracking_features_) return false;
+    }
+    const int stride = config_.tracker.preprocess.stride;
+    if (!tracking_features_->latent_image(frame.colour, frame.camera.width / stride,
+                                          frame.camera.height / stride, &latent, why)) {
+      return false;
+    }
+    features_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  }
   // Preprocess, register and decide on a keyframe (Tracker::track, eq. feat_gicp, keyframe_crit).
-  if (!tracker_.track(frame, result, why)) return false;
+  if (!tracker_.track(frame, result, why, latent.empty() ? nullptr : &latent)) return false;
+  result->timings.features_ms = features_ms;
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
   if (result->keyframe) {
     MapperKeyframe kf;

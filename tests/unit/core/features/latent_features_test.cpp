@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "fslam/core/features/latent_features.hpp"
+#include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "test_support.hpp"
 
 namespace fslam::core {
@@ -126,6 +127,46 @@ TEST(LatentFeatures, MissingOrMismatchedWeightsAreClearErrors) {
   config.autoencoder_path = path;
   EXPECT_EQ(LatentFeatures::create(config, &why), nullptr);
   EXPECT_NE(why.find("features:"), std::string::npos) << why;
+}
+
+// The live pipeline tracks with the frame's latent (eq. feat_gicp) when features are on: the
+// first keyframe's points reach the tracker's local map with their latents, and the encoder's
+// time is reported; with track_with_features off the local map carries no features. (Here and
+// not in a pipeline test file: it needs this file's image and weights.)
+TEST(LatentFeatures, SlamPipelineTracksWithTheFramesLatent) {
+  const LatentFeaturesConfig features = [] {
+    LatentFeaturesConfig c = small_config();
+    c.autoencoder_path = make_weights(c);
+    return c;
+  }();
+  RgbdFrame frame;
+  frame.colour = two_halves();
+  frame.camera = {250.0, 250.0, 159.5, 119.5, 320, 240};
+  frame.depth = cv::Mat(240, 320, CV_32FC1);
+  for (int v = 0; v < 240; ++v)  // a floor tilting away, so every lattice cell has depth
+    for (int u = 0; u < 320; ++u) frame.depth.at<float>(v, u) = 1.0f + 0.004f * static_cast<float>(v);
+  for (const bool on : {true, false}) {
+    PipelineConfig config;
+    config.features = features;
+    config.track_with_features = on;
+    std::string why;
+    auto mapping_features = LatentFeatures::create(features, &why);
+    ASSERT_NE(mapping_features, nullptr) << why;
+    config.mapper.feature_dim = mapping_features->dim();
+    SlamPipeline pipeline(config, make_cpu_rasterizer(), std::move(mapping_features));
+    TrackingResult result;
+    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    ASSERT_TRUE(result.keyframe);
+    EXPECT_GT(pipeline.tracker().local_map().size(), 1000u);
+    if (on) {
+      EXPECT_EQ(pipeline.tracker().local_map().feature_dim(), 16);
+      EXPECT_GT(result.timings.features_ms, 0.0);
+    } else {
+      EXPECT_EQ(pipeline.tracker().local_map().feature_dim(), 0);
+      EXPECT_EQ(result.timings.features_ms, 0.0);
+    }
+    pipeline.finish();
+  }
 }
 
 }  // namespace

@@ -31,6 +31,10 @@ struct PipelineConfig {
   int idle_iterations = 5;
   // Image features distilled into the Gaussians (off while features.autoencoder_path is empty).
   LatentFeaturesConfig features;
+  // With features on, the tracker registers with the feature-guided weights of eq. feat_gicp:
+  // each frame's latent on the tracker's lattice (the encoder and phi on every frame, on the
+  // tracking thread). Off: geometry and opacity only, and the encoder runs on keyframes alone.
+  bool track_with_features = true;
   bool is_valid(std::string* why = nullptr) const;
 };
 
@@ -50,8 +54,9 @@ class SlamPipeline {
   SlamPipeline(const PipelineConfig& config, std::shared_ptr<const Rasterizer> rasterizer,
                std::unique_ptr<LatentFeatures> features = nullptr);
 
-  // Tracker thread: preprocess -> feature-guided GICP (eq. feat_gicp) -> keyframe decision
-  // (eq. keyframe_crit) -> hand the keyframe to mapping. Never blocks on the mapper.
+  // Tracker thread: the frame's latent (track_with_features) -> preprocess -> feature-guided
+  // GICP (eq. feat_gicp) -> keyframe decision (eq. keyframe_crit) -> hand the keyframe to
+  // mapping. Never blocks on the mapper.
   // mapping_pose (optional): map the frame at this pose instead of the tracked one (mapping-only
   // evaluation with ground-truth poses, which separates map quality from tracking drift).
   bool process_frame(const RgbdFrame& frame, TrackingResult* result, std::string* why,
@@ -84,6 +89,9 @@ class SlamPipeline {
   Tracker tracker_;
   Mapper mapper_;
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
+  // The tracking thread's own encoder (LatentFeatures is not thread-safe), made at the first
+  // frame when features_ is set and track_with_features is on.
+  std::unique_ptr<LatentFeatures> tracking_features_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<MapperKeyframe> queue_;

@@ -63,7 +63,8 @@ struct TrackingTimings {
   double preprocess_ms = 0.0;
   double registration_ms = 0.0;
   double map_update_ms = 0.0;
-  double total_ms = 0.0;
+  double total_ms = 0.0;      // the three above
+  double features_ms = 0.0;   // the frame's latent, when the caller computed one (SlamPipeline)
 };
 
 struct TrackingResult {
