@@ -244,6 +244,12 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
   app->add_option("--prompt-bend-ratio", args->prompt.bend_ratio,
                   "Prompts: across a bend or step a Gaussian joins within this x the threshold")
       ->capture_default_str();
+  app->add_option("--prompt-fill-rounds", args->prompt.fill_rounds,
+                  "Prompts: rounds of the refinement in 3D (a Gaussian joins when enough of its neighbours are in); 0 = none")
+      ->capture_default_str();
+  app->add_option("--prompt-fill-fraction", args->prompt.fill_fraction,
+                  "Prompts: share of a Gaussian's neighbours inside the object that makes it join")
+      ->capture_default_str();
   app->add_option("--min-instance", args->promptless.min_instance_gaussians,
                   "Promptless: smaller regions merge into a neighbour")
       ->capture_default_str();

@@ -352,12 +352,59 @@ std::size_t added_off_surface(const std::vector<std::vector<int>>& smooth, const
   return off;
 }
 
+// Every Gaussian's `knn` nearest Gaussians of any opacity within `max_neighbour_distance`.
+std::vector<std::vector<int>> spatial_neighbours(const GaussianMap& map, const FeatureGraphConfig& config) {
+  std::vector<std::vector<int>> out(map.size());
+  if (map.size() < 2) return out;
+  std::vector<float> points(map.means);
+  flann::Index<flann::L2<float>> index(flann::Matrix<float>(points.data(), map.size(), 3),
+                                       flann::KDTreeSingleIndexParams(10));
+  index.buildIndex();
+  const std::size_t n = map.size();
+  const int k = std::min<int>(config.knn + 1, static_cast<int>(n));
+  std::vector<int> idx(n * static_cast<std::size_t>(k));
+  std::vector<float> d2(n * static_cast<std::size_t>(k));
+  flann::Matrix<int> im(idx.data(), n, static_cast<std::size_t>(k));
+  flann::Matrix<float> dm(d2.data(), n, static_cast<std::size_t>(k));
+  flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
+  params.cores = 1;
+  index.knnSearch(flann::Matrix<float>(points.data(), n, 3), im, dm, k, params);
+  const float r2 = config.max_neighbour_distance * config.max_neighbour_distance;
+  for (std::size_t q = 0; q < n; ++q)
+    for (int j = 0; j < k; ++j) {
+      const int other = idx[q * k + j];
+      if (other < 0 || static_cast<std::size_t>(other) == q || d2[q * k + j] > r2) continue;
+      out[q].push_back(other);
+    }
+  return out;
+}
+
+// The prompt's refinement in 3D (PromptConfig::fill_rounds): Gaussians outside `region` whose
+// spatial neighbours are at least `fraction` inside join it, `rounds` times, all of a round at once.
+void fill_region(const std::vector<std::vector<int>>& spatial, int rounds, float fraction,
+                 std::vector<std::uint8_t>* region) {
+  std::vector<std::size_t> joining;
+  for (int round = 0; round < rounds; ++round) {
+    joining.clear();
+    for (std::size_t i = 0; i < region->size(); ++i) {
+      const std::vector<int>& near = spatial[i];
+      if ((*region)[i] || near.size() < 3) continue;  // too few neighbours to outvote
+      std::size_t inside = 0;
+      for (int j : near) inside += (*region)[static_cast<std::size_t>(j)];
+      if (static_cast<float>(inside) >= fraction * static_cast<float>(near.size())) joining.push_back(i);
+    }
+    if (joining.empty()) return;
+    for (std::size_t i : joining) (*region)[i] = 1;
+  }
+}
+
 // Grows one prompt's region at each of the prompt's thresholds (seeds_for(threshold) gives its
-// seeds) and adds the one pick_threshold keeps to `selected`. False when no threshold has seeds.
+// seeds) and adds the one pick_threshold keeps, refined by fill_region, to `selected`. False when no threshold has seeds.
 template <typename SeedsFor>
 bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
-                   const std::vector<std::vector<int>>& smooth, const PromptConfig& config,
-                   const SeedsFor& seeds_for, const float* zp, std::vector<std::uint8_t>* selected) {
+                   const std::vector<std::vector<int>>& smooth, const std::vector<std::vector<int>>& spatial,
+                   const PromptConfig& config, const SeedsFor& seeds_for, const float* zp,
+                   std::vector<std::uint8_t>* selected) {
   const std::vector<float> thresholds = prompt_thresholds(config);
   std::vector<std::vector<std::uint8_t>> regions(thresholds.size());
   std::vector<std::vector<int>> seeds(thresholds.size());
@@ -381,7 +428,8 @@ bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>
       leaked[k] = added_off_surface(smooth, seeds[k + 1], regions[k], regions[k + 1]);
     }
   }
-  const std::vector<std::uint8_t>& region = regions[pick_threshold(counts, leaked, config.min_jump)];
+  std::vector<std::uint8_t>& region = regions[pick_threshold(counts, leaked, config.min_jump)];
+  fill_region(spatial, config.fill_rounds, config.fill_fraction, &region);
   for (std::size_t i = 0; i < region.size(); ++i)
     if (region[i]) (*selected)[i] = 1;
   return true;
@@ -415,6 +463,10 @@ bool PromptConfig::is_valid(std::string* why) const {
       if (!(flat_ratio > 0 && flat_ratio <= 1)) return fail(why, "segmentation: flat_ratio must be in (0, 1]");
       if (!(bend_ratio > 0 && bend_ratio <= 1)) return fail(why, "segmentation: bend_ratio must be in (0, 1]");
     }
+  }
+  if (fill_rounds < 0) return fail(why, "segmentation: fill_rounds must be >= 0");
+  if (fill_rounds > 0 && !(fill_fraction > 0 && fill_fraction <= 1)) {
+    return fail(why, "segmentation: fill_fraction must be in (0, 1]");
   }
   return graph.is_valid(why);
 }
@@ -595,10 +647,12 @@ struct PromptSelector::Graph {
   Graph(const GaussianMap& map, const PromptConfig& config)
       : space(map, config.graph),
         neighbours(space.neighbours()),
-        smooth(smooth_neighbours(map, neighbours, config)) {}
+        smooth(smooth_neighbours(map, neighbours, config)),
+        spatial(config.fill_rounds > 0 ? spatial_neighbours(map, config.graph) : std::vector<std::vector<int>>()) {}
   FeatureSpace space;
   std::vector<std::vector<int>> neighbours;
-  std::vector<std::vector<int>> smooth;  // the neighbours on one smooth surface with each
+  std::vector<std::vector<int>> smooth;   // the neighbours on one smooth surface with each
+  std::vector<std::vector<int>> spatial;  // neighbours of any opacity, for the refinement in 3D
 };
 
 PromptSelector::PromptSelector(const GaussianMap& map, const PromptConfig& config)
@@ -629,7 +683,7 @@ bool PromptSelector::select_by_points(const Rasterizer& rasterizer, const Render
                            ") hits no surface of the map in this view");
     }
     const auto seeds_for = [&](float threshold) { return seeds_at(space, config, point, zp.data(), threshold); };
-    if (!select_region(space, neighbours, graph_->smooth, config, seeds_for, zp.data(), selected)) {
+    if (!select_region(space, neighbours, graph_->smooth, graph_->spatial, config, seeds_for, zp.data(), selected)) {
       return fail(why, "point prompt (" + std::to_string(u) + ", " + std::to_string(v) +
                            "): no Gaussian near the prompted surface has its features");
     }
@@ -684,7 +738,7 @@ bool PromptSelector::select_by_box(const Rasterizer& rasterizer, const RenderVie
       for (int s : seeds_at(space, config, point, median.data(), threshold)) seeds.push_back(s);
     return seeds;
   };
-  if (!select_region(space, neighbours, graph_->smooth, config, seeds_for, median.data(), selected)) {
+  if (!select_region(space, neighbours, graph_->smooth, graph_->spatial, config, seeds_for, median.data(), selected)) {
     return fail(why, "box prompt: no Gaussian inside the box has the box's features");
   }
   return true;

@@ -221,6 +221,57 @@ TEST(Segmentation, GrowthAcrossAStepNeedsACloserLatent) {
   EXPECT_GT(flush.count(selected, 0, flush.wide_n), flush.wide_n * 95 / 100);
 }
 
+// The refinement in 3D: every 7th Gaussian of the left panel is a texture speck whose latent is
+// far from both panels', and every 11th is nearly transparent (below the graph's min_opacity).
+// Growth leaves both out; the refinement takes in what is surrounded by the object, and nothing
+// of the touching right panel or of the far panel with the left one's latent.
+TEST(Segmentation, TheRefinementIn3DClosesTheHolesSpecksLeaveInAnObject) {
+  Scene s;
+  std::vector<float> speck(static_cast<std::size_t>(test::kPanelFeatureDim), 0.0f);
+  speck[6] = 3.0f;
+  std::vector<std::size_t> specks, faint;
+  for (std::size_t i = 0; i < s.left; ++i) {
+    if (i % 7 == 3) {
+      std::copy(speck.begin(), speck.end(), s.map.features.begin() + static_cast<long>(i * test::kPanelFeatureDim));
+      specks.push_back(i);
+    } else if (i % 11 == 5) {
+      s.map.opacity_logits[i] = -3.0f;  // opacity 0.05
+      faint.push_back(i);
+    }
+  }
+  auto count = [](const std::vector<std::uint8_t>& selected, const std::vector<std::size_t>& which) {
+    std::size_t n = 0;
+    for (std::size_t i : which) n += selected[i];
+    return n;
+  };
+  std::string why;
+  std::vector<std::uint8_t> selected;
+  PromptConfig none;
+  none.fill_rounds = 0;
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{50.0, 60.0}}, none, &selected, &why)) << why;
+  EXPECT_EQ(count(selected, specks), 0u) << "the premise: growth leaves the specks out";
+  EXPECT_EQ(count(selected, faint), 0u);
+
+  PromptConfig refined;
+  ASSERT_GT(refined.fill_rounds, 0);
+  ASSERT_TRUE(select_by_points(*s.rasterizer, s.map, s.view, {{50.0, 60.0}}, refined, &selected, &why)) << why;
+  EXPECT_GT(count(selected, specks), specks.size() * 98 / 100) << count(selected, specks) << " of " << specks.size();
+  EXPECT_GT(count(selected, faint), faint.size() * 98 / 100) << count(selected, faint) << " of " << faint.size();
+  const auto in = [&](std::size_t from, std::size_t to) {
+    return std::count(selected.begin() + static_cast<long>(from), selected.begin() + static_cast<long>(to), 1);
+  };
+  EXPECT_GT(in(0, s.left), static_cast<long>(s.left * 99 / 100));
+  EXPECT_EQ(in(s.left, s.left + s.right), 0) << "the touching panel's edge has most neighbours outside";
+  EXPECT_EQ(in(s.left + s.right, s.map.size()), 0) << "the far panel is 10 cm away";
+
+  PromptConfig bad;
+  bad.fill_rounds = -1;
+  EXPECT_FALSE(bad.is_valid(&why));
+  bad.fill_rounds = 2;
+  bad.fill_fraction = 0.0f;  // would take in every neighbour of the object
+  EXPECT_FALSE(bad.is_valid(&why));
+}
+
 TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
   PromptConfig config;
   std::string why;
