@@ -1,8 +1,11 @@
 // Plain-data boundary between host code and kernels: no Eigen, no OpenCV here.
 #pragma once
 
+#include <cstdint>
+
 #include <cuda_runtime.h>
 
+#include "fslam/core/math/splat_math.hpp"
 #include "fslam/core/math/unproject.hpp"
 
 namespace fslam::cuda {
@@ -12,5 +15,41 @@ namespace fslam::cuda {
 cudaError_t unproject_depth_fwd(const core::math::Intrinsics& k, const float* depth, int width,
                                 int height, float min_depth, float max_depth, float* points,
                                 cudaStream_t stream);
+
+// ---------------------------------------------------------------- rasteriser (forward)
+constexpr int kRasterTile = 16;           // pixels per tile side, as the CPU rasteriser's kTileSize
+constexpr int kMaxFeatureChannels = 64;   // D the compositing kernel holds per pixel
+
+// Device pointers to a map's parameters (shapes as in core::GaussianMap); filter_3d may be null.
+struct RasterSceneView {
+  int count = 0;
+  const float* means = nullptr;
+  const float* rotations = nullptr;
+  const float* log_scales = nullptr;
+  const float* opacity_logits = nullptr;
+  const float* sh = nullptr;
+  const float* filter_3d = nullptr;
+  int sh_degree = 0;
+};
+
+// Device output planes: colour [3, H, W], depth, median_depth, alpha [H, W], features [D, H, W].
+struct RasterOutputView {
+  float* colour = nullptr;
+  float* depth = nullptr;
+  float* median_depth = nullptr;
+  float* alpha = nullptr;
+  float* features = nullptr;
+};
+
+// Projects every Gaussian (radius 0 = culled) and its tile rectangle ([N, 4]).
+cudaError_t project_fwd(const RasterSceneView& scene, const core::math::SplatCamera<float>& cam, int tile_size,
+                        int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected, int* rect,
+                        cudaStream_t stream);
+
+// Composites the depth-sorted tile lists; counters[0] += pairs evaluated, counters[1] += blended.
+cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const std::uint32_t* tile_offsets,
+                          const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
+                          int height, int tiles_x, int tiles_y, const float background[3],
+                          const RasterOutputView& out, unsigned long long* counters, cudaStream_t stream);
 
 }  // namespace fslam::cuda

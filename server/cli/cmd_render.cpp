@@ -152,7 +152,7 @@ int run_render(const RenderArgs& args) {
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(std::max(1, args.threads)));
   std::string notice;
-  auto rasterizer = server::make_rasterizer("auto", &notice, &why);
+  auto rasterizer = server::make_rasterizer("auto", server::RasterUse::kRender, &notice, &why);
   if (!rasterizer) return fail(why);
   core::RenderView view;
   view.camera = dataset->camera();

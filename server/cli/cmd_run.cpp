@@ -115,7 +115,7 @@ int run_slam(const RunArgs& args) {
   if (args.refine < 0) return fail("--refine must be >= 0");
   std::string notice;
   std::shared_ptr<const core::Rasterizer> rasterizer =
-      server::make_rasterizer(args.backend, &notice, &why);
+      server::make_rasterizer(args.backend, server::RasterUse::kMapping, &notice, &why);
   if (!rasterizer) return fail(why);
   if (!notice.empty()) std::fprintf(stderr, "%s\n", notice.c_str());
 

@@ -75,7 +75,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(std::max(1, args.threads)));
   std::string notice;
-  auto rasterizer = server::make_rasterizer("auto", &notice, &why);
+  auto rasterizer = server::make_rasterizer("auto", server::RasterUse::kRender, &notice, &why);
   if (!rasterizer) return fail(why);
   if (!args.out.empty()) fs::create_directories(args.out);
 

@@ -35,17 +35,37 @@ std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, st
   return core::make_cpu_backend();
 }
 
-std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, std::string* notice,
+std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, RasterUse use, std::string* notice,
                                                   std::string* why) {
   if (choice != "auto" && choice != "cpu" && choice != "cuda") {
     if (why) *why = "compute.backend must be auto, cpu or cuda, got '" + choice + "'";
     return nullptr;
   }
+  if (choice == "cpu") return core::make_cpu_rasterizer();
+  if (use == RasterUse::kMapping) {
+    if (choice == "cuda") {
+      if (why) *why = "compute.backend is cuda but the CUDA rasteriser renders only (no backward pass yet); "
+                      "mapping needs cpu";
+      return nullptr;
+    }
+    if (notice) *notice = "mapping rasteriser: CPU (the CUDA rasteriser has no backward pass yet)";
+    return core::make_cpu_rasterizer();
+  }
+#if FSLAM_HAVE_CUDA
+  std::string reason;
+  if (auto rasterizer = cuda::make_cuda_rasterizer(0, &reason)) return rasterizer;
   if (choice == "cuda") {
-    if (why) *why = "compute.backend is cuda but the CUDA rasteriser is not built yet; use cpu";
+    if (why) *why = "compute.backend is cuda but no GPU is usable (" + reason + ")";
     return nullptr;
   }
-  if (choice == "auto" && notice) *notice = "rasteriser: CPU (no CUDA rasteriser yet)";
+  if (notice) *notice = "rasteriser: no usable GPU (" + reason + "); using the CPU rasteriser";
+#else
+  if (choice == "cuda") {
+    if (why) *why = "compute.backend is cuda but this build has no CUDA backend (configure with -DFSLAM_WITH_CUDA=ON)";
+    return nullptr;
+  }
+  if (notice) *notice = "rasteriser: CUDA not compiled in; using the CPU rasteriser";
+#endif
   return core::make_cpu_rasterizer();
 }
 

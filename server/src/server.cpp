@@ -218,7 +218,7 @@ bool Server::configure(const ServerConfig& config, std::string* why) {
 bool Server::activate(std::string* why) {
   if (!configured_) return core::fail(why, "server: activate before configure");
   std::string notice;
-  query_rasterizer_ = make_rasterizer("auto", &notice, why);
+  query_rasterizer_ = make_rasterizer("auto", RasterUse::kRender, &notice, why);
   if (!query_rasterizer_) return false;
   grounding_.reset();
   if (!config_.grounding_model.empty()) {
@@ -457,7 +457,8 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
                               "this one with render requests)");
       }
       std::string why, notice;
-      std::shared_ptr<const core::Rasterizer> rasterizer = make_rasterizer("auto", &notice, &why);
+      std::shared_ptr<const core::Rasterizer> rasterizer =
+          make_rasterizer("auto", RasterUse::kMapping, &notice, &why);
       if (!rasterizer) return publish_result(msg.session, msg.request_id, map_name, why);
       std::unique_ptr<core::LatentFeatures> features;
       if (config_.pipeline.features.enabled()) {

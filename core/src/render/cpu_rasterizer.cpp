@@ -28,16 +28,6 @@ void GaussianGradients::reset(const GaussianMap& map) {
 
 namespace {
 
-bool camera_of(const RenderView& view, const RenderSettings& settings,
-               math::SplatCamera<float>* cam, std::string* why) {
-  std::string reason;
-  if (!view.camera.is_valid(&reason)) return fail(why, "render view: " + reason);
-  if (!view.T_camera_world.matrix().allFinite()) return fail(why, "render view: non-finite pose");
-  if (!(settings.near_plane > 0.0f)) return fail(why, "render settings: near plane must be > 0");
-  *cam = render_impl::splat_camera(view, settings.near_plane);
-  return true;
-}
-
 class CpuRasterizer final : public Rasterizer {
  public:
   std::string name() const override { return "cpu"; }
@@ -45,7 +35,7 @@ class CpuRasterizer final : public Rasterizer {
   bool forward(const GaussianMap& map, const RenderView& view, const RenderSettings& settings,
                RenderResult* result, std::string* why) const override {
     math::SplatCamera<float> cam;
-    if (!camera_of(view, settings, &cam, why)) return false;
+    if (!render_impl::render_camera(view, settings, &cam, why)) return false;
     std::string reason;
     if (!map.is_consistent(&reason)) return fail(why, "map: " + reason);
     const int W = cam.width, H = cam.height;
@@ -82,7 +72,7 @@ class CpuRasterizer final : public Rasterizer {
                 const RenderResult& result, const RenderGradients& output_grads,
                 GaussianGradients* grads, std::string* why) const override {
     math::SplatCamera<float> cam;
-    if (!camera_of(view, settings, &cam, why)) return false;
+    if (!render_impl::render_camera(view, settings, &cam, why)) return false;
     if (!result.backward_state) return fail(why, "backward: no forward state");
     const auto& st = result.backward_state->raster;
     if (st.projected.size() != map.size() || st.width != cam.width || st.height != cam.height) {

@@ -18,9 +18,15 @@ bool cuda_compiled_in();
 std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, std::string* notice,
                                                    std::string* why);
 
-// The rasteriser for `choice` (auto, cpu, cuda). Only the CPU rasteriser exists so far: "cuda"
-// is a configuration error that says so, "auto" takes the CPU one with a notice.
-std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, std::string* notice,
+// What a rasteriser is for: kRender needs forward() only (render and segmentation queries,
+// fslam render, segment-eval); kMapping needs backward() too (the mapper).
+enum class RasterUse { kRender, kMapping };
+
+// The rasteriser for `choice` (auto, cpu, cuda) and `use`. The CUDA rasteriser renders only:
+// for kRender "auto" takes it when a GPU is usable (else the CPU one, with a notice) and "cuda"
+// requires it; for kMapping "auto" takes the CPU one with a notice and "cuda" is a configuration
+// error that says why.
+std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, RasterUse use, std::string* notice,
                                                   std::string* why);
 
 }  // namespace fslam::server

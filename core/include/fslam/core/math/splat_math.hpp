@@ -127,16 +127,18 @@ FSLAM_HD void quat_to_rotmat_backward(const T q[4], const T dR[9], T dq[4]) {
 // ---------------------------------------------------------------- spherical harmonics
 constexpr double kSh0 = 0.28209479177387814;
 constexpr double kSh1 = 0.4886025119029199;
-constexpr double kSh2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-                            -1.0925484305920792, 0.5462742152960396};
-constexpr double kSh3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
-                            0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
-                            -0.5900435899266435};
 
 // Real SH basis up to `degree` at unit direction d and its gradient w.r.t. d (grad: [K, 3], may
 // be null). K = (degree + 1)^2 <= 16.
 template <typename T>
 FSLAM_HD void sh_basis(int degree, const T d[3], T* basis, T* grad) {
+  // Degree 2 and 3 constants, local so that device code can read them (namespace-scope arrays
+  // are host-only under nvcc).
+  constexpr double kSh2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
+                              -1.0925484305920792, 0.5462742152960396};
+  constexpr double kSh3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
+                              0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
+                              -0.5900435899266435};
   const T x = d[0], y = d[1], z = d[2];
   auto set = [&](int k, T value, T gx, T gy, T gz) {
     basis[k] = value;
@@ -531,6 +533,29 @@ FSLAM_HD bool splat_row_span(const ProjectedGaussian<T>& g, T py, int* x_begin, 
   *x_begin = static_cast<int>(ceil(lo));
   *x_end = static_cast<int>(floor(hi)) + 1;
   return *x_end > *x_begin;
+}
+
+// Tiles (tile_size pixels a side) whose pixel centres can lie inside the footprint, clipped to
+// the tiles_x x tiles_y grid: rect = x0, y0, x1, y1 (x1, y1 exclusive). Pixel centres are at
+// integers; tile t covers centres t * tile_size .. t * tile_size + tile_size - 1.
+template <typename T>
+FSLAM_HD void splat_tile_rect(const ProjectedGaussian<T>& g, int tile_size, int tiles_x, int tiles_y,
+                              int rect[4]) {
+  const int x0 = static_cast<int>(ceil(g.u - g.extent[0])) / tile_size;
+  const int y0 = static_cast<int>(ceil(g.v - g.extent[1])) / tile_size;
+  const int x1 = static_cast<int>(floor(g.u + g.extent[0])) / tile_size + 1;
+  const int y1 = static_cast<int>(floor(g.v + g.extent[1])) / tile_size + 1;
+  rect[0] = x0 > 0 ? x0 : 0;
+  rect[1] = y0 > 0 ? y0 : 0;
+  rect[2] = x1 < tiles_x ? x1 : tiles_x;
+  rect[3] = y1 < tiles_y ? y1 : tiles_y;
+}
+
+// Rows of the footprint: [*y_begin, *y_end), the rows splat_row_span is asked about.
+template <typename T>
+FSLAM_HD void splat_row_range(const ProjectedGaussian<T>& g, int* y_begin, int* y_end) {
+  *y_begin = static_cast<int>(ceil(g.v - g.extent[1]));
+  *y_end = static_cast<int>(floor(g.v + g.extent[1])) + 1;
 }
 
 // Camera-plane depth of the Gaussian at pixel (px, py): beta^T [x - mu2D; 1].

@@ -14,6 +14,7 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/math/splat_math.hpp"
 #include "fslam/core/render/rasterizer.hpp"
 
@@ -120,41 +121,24 @@ inline math::SplatCamera<float> splat_camera(const RenderView& view, float near_
   return cam;
 }
 
-// Projects every Gaussian and bins them into depth-sorted tile lists.
+// The renderer's camera for a view, or false with `why` when the view or settings are invalid.
+inline bool render_camera(const RenderView& view, const RenderSettings& settings,
+               math::SplatCamera<float>* cam, std::string* why) {
+  std::string reason;
+  if (!view.camera.is_valid(&reason)) return fail(why, "render view: " + reason);
+  if (!view.T_camera_world.matrix().allFinite()) return fail(why, "render view: non-finite pose");
+  if (!(settings.near_plane > 0.0f)) return fail(why, "render settings: near plane must be > 0");
+  *cam = splat_camera(view, settings.near_plane);
+  return true;
+}
+
+// Bins the projected Gaussians (st.projected, radius 0 = culled) into depth-sorted tile lists
+// given each one's tile rectangle (rect: [N, 4], splat_tile_rect). Shared by the CPU and CUDA
+// rasterisers, so both composite the same lists in the same order.
 template <typename T>
-void project_and_bin(const SplatScene<T>& scene, const math::SplatCamera<T>& cam,
-                     RasterState<T>* state) {
+void bin_to_tiles(const std::vector<int>& rect, RasterState<T>* state) {
   RasterState<T>& st = *state;
-  st.width = cam.width;
-  st.height = cam.height;
-  st.tiles_x = (cam.width + kTileSize - 1) / kTileSize;
-  st.tiles_y = (cam.height + kTileSize - 1) / kTileSize;
-  const std::size_t n = scene.count;
-  st.projected.assign(n, math::ProjectedGaussian<T>{});
-  std::vector<int> rect(4 * n, 0);  // [N, 4] tile x0, y0, x1, y1 (exclusive)
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i != r.end(); ++i) {
-      math::ProjectionTerms<T> terms;
-      math::ProjectedGaussian<T>& pg = st.projected[i];
-      if (!math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i,
-                                  scene.log_scales + 3 * i, scene.opacity_logits[i],
-                                  scene.filter(i), scene.sh + i * scene.sh_stride(),
-                                  scene.sh_degree, cam, &pg, &terms)) {
-        pg.radius = 0;
-        continue;
-      }
-      // Tiles whose pixel centres can lie inside the ellipse (pixel centres at integers, tile t
-      // covers centres t*16 .. t*16+15).
-      const int x0 = static_cast<int>(std::ceil(pg.u - pg.extent[0])) / kTileSize;
-      const int y0 = static_cast<int>(std::ceil(pg.v - pg.extent[1])) / kTileSize;
-      const int x1 = static_cast<int>(std::floor(pg.u + pg.extent[0])) / kTileSize + 1;
-      const int y1 = static_cast<int>(std::floor(pg.v + pg.extent[1])) / kTileSize + 1;
-      rect[4 * i] = std::max(0, x0);
-      rect[4 * i + 1] = std::max(0, y0);
-      rect[4 * i + 2] = std::min(st.tiles_x, x1);
-      rect[4 * i + 3] = std::min(st.tiles_y, y1);
-    }
-  });
+  const std::size_t n = st.projected.size();
   const int tiles = st.tiles_x * st.tiles_y;
   st.tile_offsets.assign(tiles + 1, 0);
   st.visible = 0;
@@ -183,6 +167,35 @@ void project_and_bin(const SplatScene<T>& scene, const math::SplatCamera<T>& cam
                 });
     }
   });
+}
+
+// Projects every Gaussian and bins them into depth-sorted tile lists.
+template <typename T>
+void project_and_bin(const SplatScene<T>& scene, const math::SplatCamera<T>& cam,
+                     RasterState<T>* state) {
+  RasterState<T>& st = *state;
+  st.width = cam.width;
+  st.height = cam.height;
+  st.tiles_x = (cam.width + kTileSize - 1) / kTileSize;
+  st.tiles_y = (cam.height + kTileSize - 1) / kTileSize;
+  const std::size_t n = scene.count;
+  st.projected.assign(n, math::ProjectedGaussian<T>{});
+  std::vector<int> rect(4 * n, 0);  // [N, 4] tile x0, y0, x1, y1 (exclusive)
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      math::ProjectionTerms<T> terms;
+      math::ProjectedGaussian<T>& pg = st.projected[i];
+      if (!math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i,
+                                  scene.log_scales + 3 * i, scene.opacity_logits[i],
+                                  scene.filter(i), scene.sh + i * scene.sh_stride(),
+                                  scene.sh_degree, cam, &pg, &terms)) {
+        pg.radius = 0;
+        continue;
+      }
+      math::splat_tile_rect(pg, kTileSize, st.tiles_x, st.tiles_y, &rect[4 * i]);
+    }
+  });
+  bin_to_tiles(rect, state);
 }
 
 // Forward pass (eq. blending with the camera-plane depth D_i(x)).
@@ -221,8 +234,10 @@ void rasterize_forward(const SplatScene<T>& scene, const math::SplatCamera<T>& c
         const std::uint32_t id = st.tile_ids[begin + j];
         const math::ProjectedGaussian<T>& g = st.projected[id];
         const T* f = D > 0 ? scene.features + static_cast<std::size_t>(id) * scene.feature_dim : nullptr;
-        const int gy0 = std::max(y0, static_cast<int>(std::ceil(g.v - g.extent[1])));
-        const int gy1 = std::min(y1, static_cast<int>(std::floor(g.v + g.extent[1])) + 1);
+        int gy0, gy1;
+        math::splat_row_range(g, &gy0, &gy1);
+        gy0 = std::max(y0, gy0);
+        gy1 = std::min(y1, gy1);
         for (int py = gy0; py < gy1; ++py) {
           int sx0, sx1;
           if (!math::splat_row_span(g, T(py), &sx0, &sx1)) continue;
@@ -360,8 +375,10 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
         T imp_rgb = T(0), imp_feat = T(0);
         std::fill(feature_grad.begin(), feature_grad.end(), T(0));
         bool touched = false;
-        const int gy0 = std::max(0, static_cast<int>(std::ceil(g.v - g.extent[1])) - y0);
-        const int gy1 = std::min(th, static_cast<int>(std::floor(g.v + g.extent[1])) + 1 - y0);
+        int ry0, ry1;
+        math::splat_row_range(g, &ry0, &ry1);
+        const int gy0 = std::max(0, ry0 - y0);
+        const int gy1 = std::min(th, ry1 - y0);
         for (int ly = gy0; ly < gy1; ++ly) {
           int sx0, sx1;
           if (!math::splat_row_span(g, T(y0 + ly), &sx0, &sx1)) continue;

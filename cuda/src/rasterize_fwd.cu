@@ -1,0 +1,137 @@
+// The forward rasteriser's kernels: projection (one thread per Gaussian) and compositing (one
+// block per 16x16 tile, one thread per pixel), running core's math (fslam/core/math/splat_math.hpp,
+// paper eq. proj and blending) so the CPU tests exercise the same code.
+#include "launchers.hpp"
+
+namespace fslam::cuda {
+namespace {
+
+namespace math = core::math;
+
+__global__ void project_kernel(RasterSceneView scene, math::SplatCamera<float> cam, int tile_size,
+                               int tiles_x, int tiles_y, math::ProjectedGaussian<float>* __restrict__ projected,
+                               int* __restrict__ rect) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= scene.count) return;
+  math::ProjectionTerms<float> terms;
+  math::ProjectedGaussian<float> pg;
+  const float filter = scene.filter_3d != nullptr ? scene.filter_3d[i] : 0.0f;
+  const int sh_stride = 3 * (scene.sh_degree + 1) * (scene.sh_degree + 1);
+  if (!math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
+                              scene.opacity_logits[i], filter, scene.sh + static_cast<long>(i) * sh_stride,
+                              scene.sh_degree, cam, &pg, &terms)) {
+    pg.radius = 0;
+  }
+  projected[i] = pg;
+  if (pg.radius > 0) {
+    math::splat_tile_rect(pg, tile_size, tiles_x, tiles_y, rect + 4 * i);
+  } else {
+    for (int k = 0; k < 4; ++k) rect[4 * i + k] = 0;
+  }
+}
+
+// Each pixel composites its tile's list front to back exactly as the CPU's per-splat loop does
+// per pixel: the row range and span decide which pairs are evaluated, splat_alpha the weight,
+// kTransmittanceMin ends the pixel, the first transmittance below 0.5 gives the median depth.
+template <int kTile>
+__global__ void composite_kernel(const math::ProjectedGaussian<float>* __restrict__ projected,
+                                 const std::uint32_t* __restrict__ tile_offsets,
+                                 const std::uint32_t* __restrict__ tile_ids, const float* __restrict__ features,
+                                 int feature_dim, int width, int height, int tiles_x, float3 background,
+                                 RasterOutputView out, unsigned long long* __restrict__ counters) {
+  constexpr int kBatch = kTile * kTile;
+  __shared__ math::ProjectedGaussian<float> batch[kBatch];
+  __shared__ std::uint32_t batch_ids[kBatch];
+  const int tile = blockIdx.x;
+  const int px = (tile % tiles_x) * kTile + static_cast<int>(threadIdx.x);
+  const int py = (tile / tiles_x) * kTile + static_cast<int>(threadIdx.y);
+  const int rank = static_cast<int>(threadIdx.y) * kTile + static_cast<int>(threadIdx.x);
+  const bool inside = px < width && py < height;
+  bool done = !inside;
+  const std::uint32_t begin = tile_offsets[tile], end = tile_offsets[tile + 1];
+  float trans = 1.0f, acc[4 + kMaxFeatureChannels];
+  const int channels = 4 + feature_dim;
+  for (int c = 0; c < channels; ++c) acc[c] = 0.0f;
+  float median = 0.0f;
+  bool has_median = false;
+  unsigned long long evaluated = 0, blended = 0;
+  for (std::uint32_t first = begin; first < end; first += kBatch) {
+    if (__syncthreads_count(done ? 1 : 0) == kBatch) break;  // every pixel of the tile has ended
+    const std::uint32_t mine = first + static_cast<std::uint32_t>(rank);
+    if (mine < end) {
+      batch_ids[rank] = tile_ids[mine];
+      batch[rank] = projected[batch_ids[rank]];
+    }
+    __syncthreads();
+    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), end - first));
+    for (int k = 0; k < n && !done; ++k) {
+      const math::ProjectedGaussian<float>& g = batch[k];
+      int y0, y1, x0, x1;
+      math::splat_row_range(g, &y0, &y1);
+      if (py < y0 || py >= y1) continue;
+      if (!math::splat_row_span(g, static_cast<float>(py), &x0, &x1) || px < x0 || px >= x1) continue;
+      ++evaluated;
+      float gauss;
+      const float alpha = math::splat_alpha(g, static_cast<float>(px), static_cast<float>(py), &gauss);
+      if (alpha == 0.0f) continue;
+      const float next = trans * (1.0f - alpha);
+      if (next < math::kTransmittanceMin) {
+        done = true;
+        break;
+      }
+      ++blended;
+      const float w = alpha * trans;
+      const float d = math::splat_planar_depth(g, static_cast<float>(px), static_cast<float>(py));
+      acc[0] += w * g.colour[0];
+      acc[1] += w * g.colour[1];
+      acc[2] += w * g.colour[2];
+      acc[3] += w * d;
+      const float* f = features + static_cast<long>(batch_ids[k]) * feature_dim;
+      for (int c = 0; c < feature_dim; ++c) acc[4 + c] += w * f[c];
+      if (!has_median && next < 0.5f) {
+        has_median = true;
+        median = d;
+      }
+      trans = next;
+    }
+  }
+  if (!inside) return;
+  const long plane = static_cast<long>(width) * height, pix = static_cast<long>(py) * width + px;
+  out.colour[pix] = acc[0] + trans * background.x;
+  out.colour[plane + pix] = acc[1] + trans * background.y;
+  out.colour[2 * plane + pix] = acc[2] + trans * background.z;
+  out.depth[pix] = acc[3];
+  out.median_depth[pix] = median;
+  out.alpha[pix] = 1.0f - trans;
+  for (int c = 0; c < feature_dim; ++c) out.features[c * plane + pix] = acc[4 + c];
+  atomicAdd(&counters[0], evaluated);
+  atomicAdd(&counters[1], blended);
+}
+
+}  // namespace
+
+cudaError_t project_fwd(const RasterSceneView& scene, const core::math::SplatCamera<float>& cam, int tile_size,
+                        int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected, int* rect,
+                        cudaStream_t stream) {
+  if (scene.count <= 0) return cudaSuccess;
+  constexpr int kBlock = 128;
+  project_kernel<<<(scene.count + kBlock - 1) / kBlock, kBlock, 0, stream>>>(scene, cam, tile_size, tiles_x,
+                                                                              tiles_y, projected, rect);
+  return cudaGetLastError();
+}
+
+cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const std::uint32_t* tile_offsets,
+                          const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
+                          int height, int tiles_x, int tiles_y, const float background[3],
+                          const RasterOutputView& out, unsigned long long* counters, cudaStream_t stream) {
+  if (feature_dim < 0 || feature_dim > kMaxFeatureChannels) return cudaErrorInvalidValue;
+  const int tiles = tiles_x * tiles_y;
+  if (tiles <= 0) return cudaSuccess;
+  const dim3 block(kRasterTile, kRasterTile);
+  composite_kernel<kRasterTile><<<tiles, block, 0, stream>>>(
+      projected, tile_offsets, tile_ids, features, feature_dim, width, height, tiles_x,
+      make_float3(background[0], background[1], background[2]), out, counters);
+  return cudaGetLastError();
+}
+
+}  // namespace fslam::cuda
