@@ -85,15 +85,17 @@ class CudaRasterizer final : public core::Rasterizer {
     if (status == cudaSuccess && D > 0) status = upload(&features_, map.features, stream_);
     if (status == cudaSuccess) status = projected_.resize(std::max(n, 1));
     if (status == cudaSuccess) status = rect_.resize(4 * static_cast<std::size_t>(std::max(n, 1)));
-    RasterSceneView scene;
-    scene.count = n;
+    math::SplatScene<float> scene;
+    scene.count = map.size();
     scene.means = means_.data();
     scene.rotations = rotations_.data();
     scene.log_scales = log_scales_.data();
     scene.opacity_logits = opacity_logits_.data();
     scene.sh = sh_.data();
+    scene.features = D > 0 ? features_.data() : nullptr;
     scene.filter_3d = map.filter_3d.empty() ? nullptr : filter_3d_.data();
     scene.sh_degree = map.sh_degree;
+    scene.feature_dim = D;
     if (status == cudaSuccess) {
       status = project_fwd(scene, cam, kRasterTile, st.tiles_x, st.tiles_y, projected_.data(), rect_.data(), stream_);
     }
@@ -111,16 +113,18 @@ class CudaRasterizer final : public core::Rasterizer {
     if (status == cudaSuccess) status = upload(&tile_ids_, st.tile_ids, stream_);
     if (status == cudaSuccess) status = outputs_.resize(plane * (6 + static_cast<std::size_t>(D)));
     if (status == cudaSuccess) status = counters_.resize(2);
-    if (status == cudaSuccess) status = cudaMemsetAsync(counters_.data(), 0, 2 * sizeof(unsigned long long), stream_);
-    RasterOutputView out;
+    if (status == cudaSuccess) {
+      status = cudaMemsetAsync(counters_.data(), 0, 2 * sizeof(unsigned long long), stream_);
+    }
+    math::RasterOutputs<float> out;
     out.colour = outputs_.data();
     out.depth = out.colour + 3 * plane;
     out.median_depth = out.depth + plane;
     out.alpha = out.median_depth + plane;
     out.features = out.alpha + plane;
     if (status == cudaSuccess) {
-      status = composite_fwd(projected_.data(), tile_offsets_.data(), tile_ids_.data(),
-                             D > 0 ? features_.data() : nullptr, D, W, H, st.tiles_x, st.tiles_y,
+      status = composite_fwd(projected_.data(), tile_offsets_.data(), tile_ids_.data(), scene.features, D, W, H,
+                             st.tiles_x, st.tiles_y,
                              settings.background.data(), out, counters_.data(), stream_);
     }
     result->colour = core::PlanarImage(W, H, 3);
@@ -129,12 +133,17 @@ class CudaRasterizer final : public core::Rasterizer {
     result->alpha = core::PlanarImage(W, H, 1);
     result->features = D > 0 ? core::PlanarImage(W, H, D) : core::PlanarImage();
     unsigned long long counters[2] = {0, 0};
-    if (status == cudaSuccess) status = cudaMemcpyAsync(result->colour.data.data(), out.colour, 3 * plane * sizeof(float), cudaMemcpyDeviceToHost, stream_);
-    if (status == cudaSuccess) status = cudaMemcpyAsync(result->depth.data.data(), out.depth, plane * sizeof(float), cudaMemcpyDeviceToHost, stream_);
-    if (status == cudaSuccess) status = cudaMemcpyAsync(result->median_depth.data.data(), out.median_depth, plane * sizeof(float), cudaMemcpyDeviceToHost, stream_);
-    if (status == cudaSuccess) status = cudaMemcpyAsync(result->alpha.data.data(), out.alpha, plane * sizeof(float), cudaMemcpyDeviceToHost, stream_);
-    if (status == cudaSuccess && D > 0) status = cudaMemcpyAsync(result->features.data.data(), out.features, D * plane * sizeof(float), cudaMemcpyDeviceToHost, stream_);
-    if (status == cudaSuccess) status = cudaMemcpyAsync(counters, counters_.data(), sizeof(counters), cudaMemcpyDeviceToHost, stream_);
+    const auto copy_back = [&](void* host, const void* device, std::size_t bytes) {
+      if (status == cudaSuccess && bytes > 0) {
+        status = cudaMemcpyAsync(host, device, bytes, cudaMemcpyDeviceToHost, stream_);
+      }
+    };
+    copy_back(result->colour.data.data(), out.colour, 3 * plane * sizeof(float));
+    copy_back(result->depth.data.data(), out.depth, plane * sizeof(float));
+    copy_back(result->median_depth.data.data(), out.median_depth, plane * sizeof(float));
+    copy_back(result->alpha.data.data(), out.alpha, plane * sizeof(float));
+    copy_back(result->features.data.data(), out.features, static_cast<std::size_t>(D) * plane * sizeof(float));
+    copy_back(counters, counters_.data(), sizeof(counters));
     if (status == cudaSuccess) status = cudaStreamSynchronize(stream_);
     if (status != cudaSuccess) return status;
     result->visible.resize(map.size());

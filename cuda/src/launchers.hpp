@@ -20,36 +20,17 @@ cudaError_t unproject_depth_fwd(const core::math::Intrinsics& k, const float* de
 constexpr int kRasterTile = 16;           // pixels per tile side, as the CPU rasteriser's kTileSize
 constexpr int kMaxFeatureChannels = 64;   // D the compositing kernel holds per pixel
 
-// Device pointers to a map's parameters (shapes as in core::GaussianMap); filter_3d may be null.
-struct RasterSceneView {
-  int count = 0;
-  const float* means = nullptr;
-  const float* rotations = nullptr;
-  const float* log_scales = nullptr;
-  const float* opacity_logits = nullptr;
-  const float* sh = nullptr;
-  const float* filter_3d = nullptr;
-  int sh_degree = 0;
-};
-
-// Device output planes: colour [3, H, W], depth, median_depth, alpha [H, W], features [D, H, W].
-struct RasterOutputView {
-  float* colour = nullptr;
-  float* depth = nullptr;
-  float* median_depth = nullptr;
-  float* alpha = nullptr;
-  float* features = nullptr;
-};
-
-// Projects every Gaussian (radius 0 = culled) and its tile rectangle ([N, 4]).
-cudaError_t project_fwd(const RasterSceneView& scene, const core::math::SplatCamera<float>& cam, int tile_size,
+// Projects every Gaussian of `scene` (device pointers; radius 0 = culled) and its tile rectangle
+// ([N, 4]).
+cudaError_t project_fwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam, int tile_size,
                         int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected, int* rect,
                         cudaStream_t stream);
 
-// Composites the depth-sorted tile lists; counters[0] += pairs evaluated, counters[1] += blended.
+// Composites the depth-sorted tile lists into `out` (device planes, all set; features [D, H, W]);
+// counters[0] += pairs evaluated, counters[1] += blended.
 cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const std::uint32_t* tile_offsets,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
-                          const RasterOutputView& out, unsigned long long* counters, cudaStream_t stream);
+                          const core::math::RasterOutputs<float>& out, unsigned long long* counters, cudaStream_t stream);
 
 }  // namespace fslam::cuda

@@ -8,17 +8,15 @@ namespace {
 
 namespace math = core::math;
 
-__global__ void project_kernel(RasterSceneView scene, math::SplatCamera<float> cam, int tile_size,
+__global__ void project_kernel(math::SplatScene<float> scene, math::SplatCamera<float> cam, int tile_size,
                                int tiles_x, int tiles_y, math::ProjectedGaussian<float>* __restrict__ projected,
                                int* __restrict__ rect) {
-  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  const std::size_t i = static_cast<std::size_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= scene.count) return;
   math::ProjectionTerms<float> terms;
   math::ProjectedGaussian<float> pg;
-  const float filter = scene.filter_3d != nullptr ? scene.filter_3d[i] : 0.0f;
-  const int sh_stride = 3 * (scene.sh_degree + 1) * (scene.sh_degree + 1);
   if (!math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
-                              scene.opacity_logits[i], filter, scene.sh + static_cast<long>(i) * sh_stride,
+                              scene.opacity_logits[i], scene.filter(i), scene.sh + i * scene.sh_stride(),
                               scene.sh_degree, cam, &pg, &terms)) {
     pg.radius = 0;
   }
@@ -38,7 +36,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
                                  const std::uint32_t* __restrict__ tile_offsets,
                                  const std::uint32_t* __restrict__ tile_ids, const float* __restrict__ features,
                                  int feature_dim, int width, int height, int tiles_x, float3 background,
-                                 RasterOutputView out, unsigned long long* __restrict__ counters) {
+                                 math::RasterOutputs<float> out, unsigned long long* __restrict__ counters) {
   constexpr int kBatch = kTile * kTile;
   __shared__ math::ProjectedGaussian<float> batch[kBatch];
   __shared__ std::uint32_t batch_ids[kBatch];
@@ -110,12 +108,13 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
 
 }  // namespace
 
-cudaError_t project_fwd(const RasterSceneView& scene, const core::math::SplatCamera<float>& cam, int tile_size,
+cudaError_t project_fwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam, int tile_size,
                         int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected, int* rect,
                         cudaStream_t stream) {
-  if (scene.count <= 0) return cudaSuccess;
+  if (scene.count == 0) return cudaSuccess;
   constexpr int kBlock = 128;
-  project_kernel<<<(scene.count + kBlock - 1) / kBlock, kBlock, 0, stream>>>(scene, cam, tile_size, tiles_x,
+  const unsigned blocks = static_cast<unsigned>((scene.count + kBlock - 1) / kBlock);
+  project_kernel<<<blocks, kBlock, 0, stream>>>(scene, cam, tile_size, tiles_x,
                                                                               tiles_y, projected, rect);
   return cudaGetLastError();
 }
@@ -123,7 +122,7 @@ cudaError_t project_fwd(const RasterSceneView& scene, const core::math::SplatCam
 cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const std::uint32_t* tile_offsets,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
-                          const RasterOutputView& out, unsigned long long* counters, cudaStream_t stream) {
+                          const core::math::RasterOutputs<float>& out, unsigned long long* counters, cudaStream_t stream) {
   if (feature_dim < 0 || feature_dim > kMaxFeatureChannels) return cudaErrorInvalidValue;
   const int tiles = tiles_x * tiles_y;
   if (tiles <= 0) return cudaSuccess;

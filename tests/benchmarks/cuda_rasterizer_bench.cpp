@@ -42,7 +42,9 @@ double time_forward(const fslam::core::Rasterizer& rasterizer, const fslam::core
 
 double max_difference(const fslam::core::PlanarImage& a, const fslam::core::PlanarImage& b) {
   double worst = 0;
-  for (std::size_t i = 0; i < a.data.size(); ++i) worst = std::max(worst, static_cast<double>(std::abs(a.data[i] - b.data[i])));
+  for (std::size_t i = 0; i < a.data.size(); ++i) {
+    worst = std::max(worst, static_cast<double>(std::abs(a.data[i] - b.data[i])));
+  }
   return worst;
 }
 
@@ -91,7 +93,8 @@ int main(int argc, char** argv) {
     for (int v = 0; v < views; ++v) {
       fslam::core::RenderView view;
       view.camera = camera;
-      view.T_camera_world = trajectory[trajectory.size() * static_cast<std::size_t>(v) / views].T_world_camera.inverse();
+      const std::size_t k = trajectory.size() * static_cast<std::size_t>(v) / views;
+      view.T_camera_world = trajectory[k].T_world_camera.inverse();
       fslam::core::RenderResult a, b;
       cpu_total += time_forward(*cpu, map, view, settings, repeats, &a);
       time_forward(*gpu, map, view, settings, 1, &b);  // warm-up: allocations, module load

@@ -18,6 +18,32 @@ namespace {
 
 float sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
 
+// For each of the `count` points (rows of xyz in `points`, the points `index` was built on), the
+// rows of its `knn` nearest other points within `radius`.
+std::vector<std::vector<int>> knn_within(const flann::Index<flann::L2<float>>& index,
+                                         const std::vector<float>& points, int knn, float radius) {
+  const std::size_t m = points.size() / 3;
+  std::vector<std::vector<int>> out(m);
+  if (m == 0) return out;
+  const int k = std::min<int>(knn + 1, static_cast<int>(m));
+  std::vector<int> idx(m * static_cast<std::size_t>(k));
+  std::vector<float> d2(m * static_cast<std::size_t>(k));
+  flann::Matrix<int> im(idx.data(), m, static_cast<std::size_t>(k));
+  flann::Matrix<float> dm(d2.data(), m, static_cast<std::size_t>(k));
+  flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
+  params.cores = 1;
+  const_cast<flann::Index<flann::L2<float>>&>(index).knnSearch(
+      flann::Matrix<float>(const_cast<float*>(points.data()), m, 3), im, dm, k, params);
+  const float r2 = radius * radius;
+  for (std::size_t q = 0; q < m; ++q)
+    for (int j = 0; j < k; ++j) {
+      const int other = idx[q * k + j];
+      if (other < 0 || static_cast<std::size_t>(other) == q || d2[q * k + j] > r2) continue;
+      out[q].push_back(other);
+    }
+  return out;
+}
+
 // The Gaussians taking part, their standardised latents and a k-d tree over their means.
 class FeatureSpace {
  public:
@@ -73,20 +99,10 @@ class FeatureSpace {
   std::vector<std::vector<int>> neighbours() const {
     std::vector<std::vector<int>> out(map_.size());
     if (active_.empty()) return out;
-    const std::size_t m = active_.size();
-    const int k = std::min<int>(config_.knn + 1, static_cast<int>(m));
-    std::vector<int> idx(m * static_cast<std::size_t>(k));
-    std::vector<float> d2(m * static_cast<std::size_t>(k));
-    flann::Matrix<int> im(idx.data(), m, static_cast<std::size_t>(k));
-    flann::Matrix<float> dm(d2.data(), m, static_cast<std::size_t>(k));
-    flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
-    params.cores = 1;
-    index_->knnSearch(flann::Matrix<float>(const_cast<float*>(points_.data()), m, 3), im, dm, k, params);
-    const float r2 = config_.max_neighbour_distance * config_.max_neighbour_distance;
-    for (std::size_t q = 0; q < m; ++q)
-      for (int j = 0; j < k; ++j) {
-        const int other = idx[q * k + j];
-        if (other < 0 || static_cast<std::size_t>(other) == q || d2[q * k + j] > r2) continue;
+    const std::vector<std::vector<int>> rows =
+        knn_within(*index_, points_, config_.knn, config_.max_neighbour_distance);
+    for (std::size_t q = 0; q < rows.size(); ++q)
+      for (int other : rows[q]) {
         out[static_cast<std::size_t>(active_[q])].push_back(active_[static_cast<std::size_t>(other)]);
       }
     return out;
@@ -354,29 +370,12 @@ std::size_t added_off_surface(const std::vector<std::vector<int>>& smooth, const
 
 // Every Gaussian's `knn` nearest Gaussians of any opacity within `max_neighbour_distance`.
 std::vector<std::vector<int>> spatial_neighbours(const GaussianMap& map, const FeatureGraphConfig& config) {
-  std::vector<std::vector<int>> out(map.size());
-  if (map.size() < 2) return out;
+  if (map.empty()) return {};
   std::vector<float> points(map.means);
   flann::Index<flann::L2<float>> index(flann::Matrix<float>(points.data(), map.size(), 3),
                                        flann::KDTreeSingleIndexParams(10));
   index.buildIndex();
-  const std::size_t n = map.size();
-  const int k = std::min<int>(config.knn + 1, static_cast<int>(n));
-  std::vector<int> idx(n * static_cast<std::size_t>(k));
-  std::vector<float> d2(n * static_cast<std::size_t>(k));
-  flann::Matrix<int> im(idx.data(), n, static_cast<std::size_t>(k));
-  flann::Matrix<float> dm(d2.data(), n, static_cast<std::size_t>(k));
-  flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
-  params.cores = 1;
-  index.knnSearch(flann::Matrix<float>(points.data(), n, 3), im, dm, k, params);
-  const float r2 = config.max_neighbour_distance * config.max_neighbour_distance;
-  for (std::size_t q = 0; q < n; ++q)
-    for (int j = 0; j < k; ++j) {
-      const int other = idx[q * k + j];
-      if (other < 0 || static_cast<std::size_t>(other) == q || d2[q * k + j] > r2) continue;
-      out[q].push_back(other);
-    }
-  return out;
+  return knn_within(index, points, config.knn, config.max_neighbour_distance);
 }
 
 // The prompt's refinement in 3D (PromptConfig::fill_rounds): Gaussians outside `region` whose
@@ -399,7 +398,8 @@ void fill_region(const std::vector<std::vector<int>>& spatial, int rounds, float
 }
 
 // Grows one prompt's region at each of the prompt's thresholds (seeds_for(threshold) gives its
-// seeds) and adds the one pick_threshold keeps, refined by fill_region, to `selected`. False when no threshold has seeds.
+// seeds) and adds the one pick_threshold keeps, refined by fill_region, to `selected`. False when
+// no threshold has seeds.
 template <typename SeedsFor>
 bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
                    const std::vector<std::vector<int>>& smooth, const std::vector<std::vector<int>>& spatial,

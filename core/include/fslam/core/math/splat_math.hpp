@@ -6,6 +6,8 @@
 
 #include <math.h>  // sqrt, exp, log: device functions under nvcc, the C library on the host
 
+#include <cstddef>
+
 #include "fslam/core/math/host_device.hpp"
 
 namespace fslam::core::math {
@@ -38,6 +40,35 @@ struct ProjectedGaussian {
   T power_floor;  // log(kAlphaMin / opacity): a lower exponent gives alpha < kAlphaMin
   T extent[2];    // half-width and half-height (pixels) of the ellipse where alpha >= kAlphaMin
   int radius;     // pixels around (u, v) where alpha can reach kAlphaMin; 0 = culled
+};
+
+// Read-only view of a map's parameters (shapes as in GaussianMap; host or device pointers).
+template <typename T>
+struct SplatScene {
+  std::size_t count = 0;
+  const T* means = nullptr;           // [N, 3]
+  const T* rotations = nullptr;       // [N, 4] w, x, y, z
+  const T* log_scales = nullptr;      // [N, 3]
+  const T* opacity_logits = nullptr;  // [N]
+  const T* sh = nullptr;              // [N, K, 3]
+  const T* features = nullptr;        // [N, D] (null when D = 0)
+  const T* filter_3d = nullptr;       // [N] (null = no filter)
+  int sh_degree = 0;
+  int feature_dim = 0;
+
+  FSLAM_HD int sh_stride() const { return 3 * (sh_degree + 1) * (sh_degree + 1); }
+  FSLAM_HD T filter(std::size_t i) const { return filter_3d != nullptr ? filter_3d[i] : T(0); }
+};
+
+// Output buffers of the forward pass; sizes from the camera. Any may be null except colour,
+// depth and alpha.
+template <typename T>
+struct RasterOutputs {
+  T* colour = nullptr;        // [3, H, W] composited colour plus T_final * background
+  T* depth = nullptr;         // [H, W] expected camera-plane depth (unnormalised, eq. D_exp)
+  T* median_depth = nullptr;  // [H, W] planar depth where accumulated opacity first exceeds 0.5
+  T* alpha = nullptr;         // [H, W] accumulated opacity 1 - T_final
+  T* features = nullptr;      // [D, H, W]
 };
 
 // Gradient of the loss w.r.t. a ProjectedGaussian's fields, summed over its pixels.

@@ -22,34 +22,8 @@ namespace fslam::core::render_impl {
 
 constexpr int kTileSize = 16;                  // pixels per tile side
 
-// Read-only view of a map's parameters (shapes as in GaussianMap).
-template <typename T>
-struct SplatScene {
-  std::size_t count = 0;
-  const T* means = nullptr;           // [N, 3]
-  const T* rotations = nullptr;       // [N, 4] w, x, y, z
-  const T* log_scales = nullptr;      // [N, 3]
-  const T* opacity_logits = nullptr;  // [N]
-  const T* sh = nullptr;              // [N, K, 3]
-  const T* features = nullptr;        // [N, D] (null when D = 0)
-  const T* filter_3d = nullptr;       // [N] (null = no filter)
-  int sh_degree = 0;
-  int feature_dim = 0;
-
-  int sh_stride() const { return 3 * (sh_degree + 1) * (sh_degree + 1); }
-  T filter(std::size_t i) const { return filter_3d != nullptr ? filter_3d[i] : T(0); }
-};
-
-// Output buffers of the forward pass; sizes from the camera. Any may be null except colour,
-// depth and alpha.
-template <typename T>
-struct RasterOutputs {
-  T* colour = nullptr;        // [3, H, W] composited colour plus T_final * background
-  T* depth = nullptr;         // [H, W] expected camera-plane depth (unnormalised, eq. D_exp)
-  T* median_depth = nullptr;  // [H, W] planar depth where accumulated opacity first exceeds 0.5
-  T* alpha = nullptr;         // [H, W] accumulated opacity 1 - T_final
-  T* features = nullptr;      // [D, H, W]
-};
+using math::RasterOutputs;
+using math::SplatScene;
 
 // Gradients of the loss w.r.t. the outputs; null = zero.
 template <typename T>
