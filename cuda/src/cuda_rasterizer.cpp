@@ -1,6 +1,7 @@
-// The CUDA rasteriser: projection and compositing on the GPU with core's math, binning and the
-// depth sort on the host with the CPU rasteriser's own code (render_impl::bin_to_tiles), so both
-// composite the same lists in the same order. Forward only: gradients (mapping) run on the CPU.
+// The CUDA rasteriser: projection, binning, the depth sort and compositing on the GPU with core's
+// math, in the CPU rasteriser's order (depth of the mean, ties by id), so both composite the same
+// lists. Forward only: gradients (mapping) run on the CPU.
+#include <algorithm>
 #include <mutex>
 
 #include "fslam/core/error.hpp"
@@ -69,13 +70,9 @@ class CudaRasterizer final : public core::Rasterizer {
  private:
   cudaError_t render(const core::GaussianMap& map, const math::SplatCamera<float>& cam,
                      const core::RenderSettings& settings, int D, core::RenderResult* result) const {
-    const int n = static_cast<int>(map.size()), W = cam.width, H = cam.height;
-    render_impl::RasterState<float> st;
-    st.width = W;
-    st.height = H;
-    st.tiles_x = (W + kRasterTile - 1) / kRasterTile;
-    st.tiles_y = (H + kRasterTile - 1) / kRasterTile;
-    // Projection on the device.
+    const std::size_t n = map.size(), slots = std::max<std::size_t>(n, 1);
+    const int W = cam.width, H = cam.height;
+    const int tiles_x = (W + kRasterTile - 1) / kRasterTile, tiles_y = (H + kRasterTile - 1) / kRasterTile;
     cudaError_t status = upload(&means_, map.means, stream_);
     if (status == cudaSuccess) status = upload(&rotations_, map.rotations, stream_);
     if (status == cudaSuccess) status = upload(&log_scales_, map.log_scales, stream_);
@@ -83,10 +80,12 @@ class CudaRasterizer final : public core::Rasterizer {
     if (status == cudaSuccess) status = upload(&sh_, map.sh, stream_);
     if (status == cudaSuccess) status = upload(&filter_3d_, map.filter_3d, stream_);
     if (status == cudaSuccess && D > 0) status = upload(&features_, map.features, stream_);
-    if (status == cudaSuccess) status = projected_.resize(std::max(n, 1));
-    if (status == cudaSuccess) status = rect_.resize(4 * static_cast<std::size_t>(std::max(n, 1)));
+    if (status == cudaSuccess) status = projected_.resize(slots);
+    if (status == cudaSuccess) status = rect_.resize(4 * slots);
+    if (status == cudaSuccess) status = touched_.resize(slots);
+    if (status == cudaSuccess) status = visible_.resize(slots);
     math::SplatScene<float> scene;
-    scene.count = map.size();
+    scene.count = n;
     scene.means = means_.data();
     scene.rotations = rotations_.data();
     scene.log_scales = log_scales_.data();
@@ -97,20 +96,15 @@ class CudaRasterizer final : public core::Rasterizer {
     scene.sh_degree = map.sh_degree;
     scene.feature_dim = D;
     if (status == cudaSuccess) {
-      status = project_fwd(scene, cam, kRasterTile, st.tiles_x, st.tiles_y, projected_.data(), rect_.data(), stream_);
+      status = project_fwd(scene, cam, kRasterTile, tiles_x, tiles_y, projected_.data(), rect_.data(),
+                           touched_.data(), visible_.data(), stream_);
     }
-    // Binning and the depth sort on the host, the CPU rasteriser's code.
-    st.projected.resize(map.size());
-    std::vector<int> rect(4 * map.size());
-    if (status == cudaSuccess) status = download(projected_, map.size(), st.projected.data(), stream_);
-    if (status == cudaSuccess) status = download(rect_, rect.size(), rect.data(), stream_);
-    if (status == cudaSuccess) status = cudaStreamSynchronize(stream_);
-    if (status != cudaSuccess) return status;
-    render_impl::bin_to_tiles(rect, &st);
-    // Compositing on the device.
+    std::uint32_t entries = 0;
+    if (status == cudaSuccess) {
+      status = bin_fwd(static_cast<int>(n), projected_.data(), rect_.data(), touched_.data(), tiles_x, tiles_y,
+                       &bins_, &entries, stream_);
+    }
     const std::size_t plane = static_cast<std::size_t>(W) * H;
-    status = upload(&tile_offsets_, st.tile_offsets, stream_);
-    if (status == cudaSuccess) status = upload(&tile_ids_, st.tile_ids, stream_);
     if (status == cudaSuccess) status = outputs_.resize(plane * (6 + static_cast<std::size_t>(D)));
     if (status == cudaSuccess) status = counters_.resize(2);
     if (status == cudaSuccess) {
@@ -123,15 +117,15 @@ class CudaRasterizer final : public core::Rasterizer {
     out.alpha = out.median_depth + plane;
     out.features = out.alpha + plane;
     if (status == cudaSuccess) {
-      status = composite_fwd(projected_.data(), tile_offsets_.data(), tile_ids_.data(), scene.features, D, W, H,
-                             st.tiles_x, st.tiles_y,
-                             settings.background.data(), out, counters_.data(), stream_);
+      status = composite_fwd(projected_.data(), bins_.ranges.data(), bins_.sorted_ids.data(), scene.features, D, W,
+                             H, tiles_x, tiles_y, settings.background.data(), out, counters_.data(), stream_);
     }
     result->colour = core::PlanarImage(W, H, 3);
     result->depth = core::PlanarImage(W, H, 1);
     result->median_depth = core::PlanarImage(W, H, 1);
     result->alpha = core::PlanarImage(W, H, 1);
     result->features = D > 0 ? core::PlanarImage(W, H, D) : core::PlanarImage();
+    result->visible.assign(n, 0);
     unsigned long long counters[2] = {0, 0};
     const auto copy_back = [&](void* host, const void* device, std::size_t bytes) {
       if (status == cudaSuccess && bytes > 0) {
@@ -143,15 +137,14 @@ class CudaRasterizer final : public core::Rasterizer {
     copy_back(result->median_depth.data.data(), out.median_depth, plane * sizeof(float));
     copy_back(result->alpha.data.data(), out.alpha, plane * sizeof(float));
     copy_back(result->features.data.data(), out.features, static_cast<std::size_t>(D) * plane * sizeof(float));
+    copy_back(result->visible.data(), visible_.data(), n);
     copy_back(counters, counters_.data(), sizeof(counters));
     if (status == cudaSuccess) status = cudaStreamSynchronize(stream_);
     if (status != cudaSuccess) return status;
-    result->visible.resize(map.size());
-    for (std::size_t i = 0; i < map.size(); ++i) result->visible[i] = st.projected[i].radius > 0 ? 1 : 0;
-    result->stats.gaussians = map.size();
+    result->stats.gaussians = n;
     result->stats.pixels = plane;
-    result->stats.visible = st.visible;
-    result->stats.tile_entries = st.tile_ids.size();
+    result->stats.visible = static_cast<std::size_t>(std::count(result->visible.begin(), result->visible.end(), 1));
+    result->stats.tile_entries = entries;
     result->stats.evaluated_pairs = counters[0];
     result->stats.blend_steps = counters[1];
     result->backward_state = nullptr;
@@ -165,7 +158,9 @@ class CudaRasterizer final : public core::Rasterizer {
   mutable DeviceBuffer<float> means_, rotations_, log_scales_, opacity_logits_, sh_, filter_3d_, features_;
   mutable DeviceBuffer<math::ProjectedGaussian<float>> projected_;
   mutable DeviceBuffer<int> rect_;
-  mutable DeviceBuffer<std::uint32_t> tile_offsets_, tile_ids_;
+  mutable DeviceBuffer<std::uint32_t> touched_;
+  mutable DeviceBuffer<std::uint8_t> visible_;
+  mutable BinBuffers bins_;
   mutable DeviceBuffer<float> outputs_;
   mutable DeviceBuffer<unsigned long long> counters_;
 };

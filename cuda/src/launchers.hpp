@@ -8,6 +8,8 @@
 #include "fslam/core/math/splat_math.hpp"
 #include "fslam/core/math/unproject.hpp"
 
+#include "device_buffer.hpp"
+
 namespace fslam::cuda {
 
 // depth: [height * width] float metres (device); points: [height * width * 3] float (device).
@@ -20,17 +22,34 @@ cudaError_t unproject_depth_fwd(const core::math::Intrinsics& k, const float* de
 constexpr int kRasterTile = 16;           // pixels per tile side, as the CPU rasteriser's kTileSize
 constexpr int kMaxFeatureChannels = 64;   // D the compositing kernel holds per pixel
 
-// Projects every Gaussian of `scene` (device pointers; radius 0 = culled) and its tile rectangle
-// ([N, 4]).
-cudaError_t project_fwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam, int tile_size,
-                        int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected, int* rect,
-                        cudaStream_t stream);
+// Projects every Gaussian of `scene` (device pointers; radius 0 = culled): its tile rectangle
+// ([N, 4]), the number of tiles it touches and whether it is visible (1) at all.
+cudaError_t project_fwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam,
+                        int tile_size, int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected,
+                        int* rect, std::uint32_t* touched, std::uint8_t* visible, cudaStream_t stream);
+
+// Device memory of the binning, kept between renders.
+struct BinBuffers {
+  DeviceBuffer<std::uint32_t> offsets, ids, sorted_ids;
+  DeviceBuffer<unsigned long long> keys, sorted_keys;
+  DeviceBuffer<unsigned char> scratch;
+  DeviceBuffer<uint2> ranges;  // [tiles] begin, end into sorted_ids
+};
+
+// Bins the projected Gaussians into per-tile lists sorted front to back by the depth of the mean,
+// ties by id: the order of the CPU's render_impl::bin_to_tiles. On return buffers->ranges and
+// buffers->sorted_ids hold the lists and *entries their total length. Synchronises `stream` once
+// (to size the lists).
+cudaError_t bin_fwd(int count, const core::math::ProjectedGaussian<float>* projected, const int* rect,
+                    const std::uint32_t* touched, int tiles_x, int tiles_y, BinBuffers* buffers,
+                    std::uint32_t* entries, cudaStream_t stream);
 
 // Composites the depth-sorted tile lists into `out` (device planes, all set; features [D, H, W]);
 // counters[0] += pairs evaluated, counters[1] += blended.
-cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const std::uint32_t* tile_offsets,
+cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
-                          const core::math::RasterOutputs<float>& out, unsigned long long* counters, cudaStream_t stream);
+                          const core::math::RasterOutputs<float>& out, unsigned long long* counters,
+                          cudaStream_t stream);
 
 }  // namespace fslam::cuda

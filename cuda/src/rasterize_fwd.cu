@@ -1,6 +1,8 @@
 // The forward rasteriser's kernels: projection (one thread per Gaussian) and compositing (one
 // block per 16x16 tile, one thread per pixel), running core's math (fslam/core/math/splat_math.hpp,
 // paper eq. proj and blending) so the CPU tests exercise the same code.
+#include <cub/cub.cuh>
+
 #include "launchers.hpp"
 
 namespace fslam::cuda {
@@ -10,7 +12,8 @@ namespace math = core::math;
 
 __global__ void project_kernel(math::SplatScene<float> scene, math::SplatCamera<float> cam, int tile_size,
                                int tiles_x, int tiles_y, math::ProjectedGaussian<float>* __restrict__ projected,
-                               int* __restrict__ rect) {
+                               int* __restrict__ rect, std::uint32_t* __restrict__ touched,
+                               std::uint8_t* __restrict__ visible) {
   const std::size_t i = static_cast<std::size_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= scene.count) return;
   math::ProjectionTerms<float> terms;
@@ -21,11 +24,45 @@ __global__ void project_kernel(math::SplatScene<float> scene, math::SplatCamera<
     pg.radius = 0;
   }
   projected[i] = pg;
+  int* r = rect + 4 * i;
   if (pg.radius > 0) {
-    math::splat_tile_rect(pg, tile_size, tiles_x, tiles_y, rect + 4 * i);
+    math::splat_tile_rect(pg, tile_size, tiles_x, tiles_y, r);
   } else {
-    for (int k = 0; k < 4; ++k) rect[4 * i + k] = 0;
+    r[0] = r[1] = r[2] = r[3] = 0;
   }
+  const int w = r[2] - r[0], h = r[3] - r[1];
+  touched[i] = w > 0 && h > 0 ? static_cast<std::uint32_t>(w * h) : 0u;
+  visible[i] = pg.radius > 0 ? 1 : 0;
+}
+
+// One key per (Gaussian, tile) pair: tile in the high 32 bits, the depth's bits in the low 32 (a
+// positive float's bits order like the float). Written in id order, so a stable sort keeps ties
+// by id.
+__global__ void duplicate_kernel(int count, const math::ProjectedGaussian<float>* __restrict__ projected,
+                                 const int* __restrict__ rect, const std::uint32_t* __restrict__ touched,
+                                 const std::uint32_t* __restrict__ offsets, int tiles_x,
+                                 unsigned long long* __restrict__ keys, std::uint32_t* __restrict__ ids) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= count || touched[i] == 0) return;
+  const unsigned long long depth = __float_as_uint(projected[i].depth);
+  std::uint32_t k = offsets[i];
+  const int* r = rect + 4 * i;
+  for (int ty = r[1]; ty < r[3]; ++ty)
+    for (int tx = r[0]; tx < r[2]; ++tx) {
+      keys[k] = (static_cast<unsigned long long>(ty * tiles_x + tx) << 32) | depth;
+      ids[k] = static_cast<std::uint32_t>(i);
+      ++k;
+    }
+}
+
+// Each tile's [begin, end) in the sorted keys; tiles without entries keep {0, 0}.
+__global__ void ranges_kernel(std::uint32_t entries, const unsigned long long* __restrict__ keys,
+                              uint2* __restrict__ ranges) {
+  const std::uint32_t j = blockIdx.x * blockDim.x + threadIdx.x;
+  if (j >= entries) return;
+  const unsigned tile = static_cast<unsigned>(keys[j] >> 32);
+  if (j == 0 || static_cast<unsigned>(keys[j - 1] >> 32) != tile) ranges[tile].x = j;
+  if (j + 1 == entries || static_cast<unsigned>(keys[j + 1] >> 32) != tile) ranges[tile].y = j + 1;
 }
 
 // Each pixel composites its tile's list front to back exactly as the CPU's per-splat loop does
@@ -33,7 +70,7 @@ __global__ void project_kernel(math::SplatScene<float> scene, math::SplatCamera<
 // kTransmittanceMin ends the pixel, the first transmittance below 0.5 gives the median depth.
 template <int kTile>
 __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restrict__ projected,
-                                 const std::uint32_t* __restrict__ tile_offsets,
+                                 const uint2* __restrict__ tile_ranges,
                                  const std::uint32_t* __restrict__ tile_ids, const float* __restrict__ features,
                                  int feature_dim, int width, int height, int tiles_x, float3 background,
                                  math::RasterOutputs<float> out, unsigned long long* __restrict__ counters) {
@@ -46,7 +83,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
   const int rank = static_cast<int>(threadIdx.y) * kTile + static_cast<int>(threadIdx.x);
   const bool inside = px < width && py < height;
   bool done = !inside;
-  const std::uint32_t begin = tile_offsets[tile], end = tile_offsets[tile + 1];
+  const std::uint32_t begin = tile_ranges[tile].x, end = tile_ranges[tile].y;
   float trans = 1.0f, acc[4 + kMaxFeatureChannels];
   const int channels = 4 + feature_dim;
   for (int c = 0; c < channels; ++c) acc[c] = 0.0f;
@@ -108,27 +145,89 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
 
 }  // namespace
 
-cudaError_t project_fwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam, int tile_size,
-                        int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected, int* rect,
-                        cudaStream_t stream) {
+cudaError_t project_fwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam,
+                        int tile_size, int tiles_x, int tiles_y, core::math::ProjectedGaussian<float>* projected,
+                        int* rect, std::uint32_t* touched, std::uint8_t* visible, cudaStream_t stream) {
   if (scene.count == 0) return cudaSuccess;
   constexpr int kBlock = 128;
   const unsigned blocks = static_cast<unsigned>((scene.count + kBlock - 1) / kBlock);
-  project_kernel<<<blocks, kBlock, 0, stream>>>(scene, cam, tile_size, tiles_x,
-                                                                              tiles_y, projected, rect);
+  project_kernel<<<blocks, kBlock, 0, stream>>>(scene, cam, tile_size, tiles_x, tiles_y, projected, rect, touched,
+                                                visible);
   return cudaGetLastError();
 }
 
-cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const std::uint32_t* tile_offsets,
+cudaError_t bin_fwd(int count, const core::math::ProjectedGaussian<float>* projected, const int* rect,
+                    const std::uint32_t* touched, int tiles_x, int tiles_y, BinBuffers* buffers,
+                    std::uint32_t* entries, cudaStream_t stream) {
+  const int tiles = tiles_x * tiles_y;
+  *entries = 0;
+  cudaError_t status = buffers->ranges.resize(static_cast<std::size_t>(std::max(tiles, 1)));
+  if (status == cudaSuccess) status = cudaMemsetAsync(buffers->ranges.data(), 0, tiles * sizeof(uint2), stream);
+  if (status != cudaSuccess || count == 0) return status;
+  // Where each Gaussian's pairs start: an exclusive scan of the tiles it touches.
+  status = buffers->offsets.resize(static_cast<std::size_t>(count));
+  std::size_t scratch = 0;
+  if (status == cudaSuccess) {
+    status = cub::DeviceScan::ExclusiveSum(nullptr, scratch, touched, buffers->offsets.data(), count, stream);
+  }
+  if (status == cudaSuccess) status = buffers->scratch.resize(std::max<std::size_t>(scratch, 1));
+  if (status == cudaSuccess) {
+    status = cub::DeviceScan::ExclusiveSum(buffers->scratch.data(), scratch, touched, buffers->offsets.data(),
+                                           count, stream);
+  }
+  std::uint32_t last[2] = {0, 0};
+  if (status == cudaSuccess) {
+    status = cudaMemcpyAsync(&last[0], buffers->offsets.data() + count - 1, sizeof(std::uint32_t),
+                             cudaMemcpyDeviceToHost, stream);
+  }
+  if (status == cudaSuccess) {
+    status = cudaMemcpyAsync(&last[1], touched + count - 1, sizeof(std::uint32_t), cudaMemcpyDeviceToHost, stream);
+  }
+  if (status == cudaSuccess) status = cudaStreamSynchronize(stream);
+  if (status != cudaSuccess) return status;
+  const std::uint32_t n = last[0] + last[1];
+  *entries = n;
+  if (n == 0) return cudaSuccess;
+  status = buffers->keys.resize(n);
+  if (status == cudaSuccess) status = buffers->sorted_keys.resize(n);
+  if (status == cudaSuccess) status = buffers->ids.resize(n);
+  if (status == cudaSuccess) status = buffers->sorted_ids.resize(n);
+  if (status != cudaSuccess) return status;
+  constexpr int kBlock = 256;
+  duplicate_kernel<<<(count + kBlock - 1) / kBlock, kBlock, 0, stream>>>(
+      count, projected, rect, touched, buffers->offsets.data(), tiles_x, buffers->keys.data(), buffers->ids.data());
+  status = cudaGetLastError();
+  // A stable radix sort over the depth bits and as many tile bits as there are tiles.
+  int tile_bits = 1;
+  while ((1 << tile_bits) < tiles) ++tile_bits;
+  if (status == cudaSuccess) {
+    status = cub::DeviceRadixSort::SortPairs(nullptr, scratch, buffers->keys.data(), buffers->sorted_keys.data(),
+                                             buffers->ids.data(), buffers->sorted_ids.data(), n, 0, 32 + tile_bits,
+                                             stream);
+  }
+  if (status == cudaSuccess) status = buffers->scratch.resize(std::max<std::size_t>(scratch, 1));
+  if (status == cudaSuccess) {
+    status = cub::DeviceRadixSort::SortPairs(buffers->scratch.data(), scratch, buffers->keys.data(),
+                                             buffers->sorted_keys.data(), buffers->ids.data(),
+                                             buffers->sorted_ids.data(), n, 0, 32 + tile_bits, stream);
+  }
+  if (status != cudaSuccess) return status;
+  ranges_kernel<<<(n + kBlock - 1) / kBlock, kBlock, 0, stream>>>(n, buffers->sorted_keys.data(),
+                                                                 buffers->ranges.data());
+  return cudaGetLastError();
+}
+
+cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
-                          const core::math::RasterOutputs<float>& out, unsigned long long* counters, cudaStream_t stream) {
+                          const core::math::RasterOutputs<float>& out, unsigned long long* counters,
+                          cudaStream_t stream) {
   if (feature_dim < 0 || feature_dim > kMaxFeatureChannels) return cudaErrorInvalidValue;
   const int tiles = tiles_x * tiles_y;
   if (tiles <= 0) return cudaSuccess;
   const dim3 block(kRasterTile, kRasterTile);
   composite_kernel<kRasterTile><<<tiles, block, 0, stream>>>(
-      projected, tile_offsets, tile_ids, features, feature_dim, width, height, tiles_x,
+      projected, tile_ranges, tile_ids, features, feature_dim, width, height, tiles_x,
       make_float3(background[0], background[1], background[2]), out, counters);
   return cudaGetLastError();
 }

@@ -110,6 +110,6 @@ int main(int argc, char** argv) {
                 1e3 * cpu_total / views, 1e3 * gpu_total / views, cpu_total / gpu_total, steps / cpu_total / 1e6,
                 steps / gpu_total / 1e6, d_rgb, d_depth);
   }
-  std::printf("cuda ms: the whole forward() call, uploads of the map, host binning and downloads included\n");
+  std::printf("cuda ms: the whole forward() call, the upload of the map and the download of the images included\n");
   return 0;
 }

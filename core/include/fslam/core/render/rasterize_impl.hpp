@@ -107,8 +107,8 @@ inline bool render_camera(const RenderView& view, const RenderSettings& settings
 }
 
 // Bins the projected Gaussians (st.projected, radius 0 = culled) into depth-sorted tile lists
-// given each one's tile rectangle (rect: [N, 4], splat_tile_rect). Shared by the CPU and CUDA
-// rasterisers, so both composite the same lists in the same order.
+// given each one's tile rectangle (rect: [N, 4], splat_tile_rect). The CUDA rasteriser's bin_fwd
+// keeps this order (depth of the mean, ties by id) so that both composite the same lists.
 template <typename T>
 void bin_to_tiles(const std::vector<int>& rect, RasterState<T>* state) {
   RasterState<T>& st = *state;
