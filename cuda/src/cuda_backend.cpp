@@ -1,14 +1,11 @@
 #include "fslam/cuda/cuda_backend.hpp"
 
+#include "cuda_status.hpp"
 #include "device_buffer.hpp"
 #include "launchers.hpp"
 
 namespace fslam::cuda {
 namespace {
-
-std::string describe(cudaError_t status) {
-  return std::string(cudaGetErrorName(status)) + ": " + cudaGetErrorString(status);
-}
 
 class CudaBackend final : public core::ComputeBackend {
  public:

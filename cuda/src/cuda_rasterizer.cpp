@@ -8,6 +8,7 @@
 #include "fslam/core/render/rasterize_impl.hpp"
 #include "fslam/cuda/cuda_backend.hpp"
 
+#include "cuda_status.hpp"
 #include "device_buffer.hpp"
 #include "launchers.hpp"
 
@@ -18,10 +19,6 @@ namespace math = core::math;
 namespace render_impl = core::render_impl;
 static_assert(kRasterTile == render_impl::kTileSize, "CPU and CUDA tiles must match");
 
-std::string describe(cudaError_t status) {
-  return std::string(cudaGetErrorName(status)) + ": " + cudaGetErrorString(status);
-}
-
 template <typename T>
 cudaError_t upload(DeviceBuffer<T>* buffer, const std::vector<T>& host, cudaStream_t stream) {
   cudaError_t status = buffer->resize(std::max<std::size_t>(host.size(), 1));
@@ -29,12 +26,6 @@ cudaError_t upload(DeviceBuffer<T>* buffer, const std::vector<T>& host, cudaStre
     status = cudaMemcpyAsync(buffer->data(), host.data(), host.size() * sizeof(T), cudaMemcpyHostToDevice, stream);
   }
   return status;
-}
-
-template <typename T>
-cudaError_t download(const DeviceBuffer<T>& buffer, std::size_t count, T* host, cudaStream_t stream) {
-  if (count == 0) return cudaSuccess;
-  return cudaMemcpyAsync(host, buffer.data(), count * sizeof(T), cudaMemcpyDeviceToHost, stream);
 }
 
 class CudaRasterizer final : public core::Rasterizer {
