@@ -218,12 +218,18 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
     std::lock_guard<std::mutex> lock(callback_mutex_);
     awaited_[key] = std::make_unique<Answer>();
   }
-  // Wait for discovery (a server's reader), then send once and wait for the answer.
+  // Wait for discovery both ways (a server's reader of the request and its writer of results:
+  // results are volatile, so one sent before the server's writer matched our reader is lost),
+  // then send once and wait for the answer.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
   dds_publication_matched_status_t matched{};
+  dds_subscription_matched_status_t answering{};
   for (;;) {
     dds_get_publication_matched_status(writer, &matched);
-    if (matched.current_count > 0 || std::chrono::steady_clock::now() >= deadline) break;
+    dds_get_subscription_matched_status(result_reader_.get(), &answering);
+    if ((matched.current_count > 0 && answering.current_count > 0) || std::chrono::steady_clock::now() >= deadline) {
+      break;
+    }
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   const bool sent = matched.current_count > 0 && dds_write(writer, sample) == DDS_RETCODE_OK;
