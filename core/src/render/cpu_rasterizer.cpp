@@ -6,9 +6,11 @@
 
 namespace fslam::core {
 
-struct RenderBackwardState {
+namespace {
+struct CpuBackwardState final : RenderBackwardState {
   render_impl::RasterState<float> raster;
 };
+}  // namespace
 
 double RenderStats::mean_splats_per_pixel() const {
   return pixels > 0 ? static_cast<double>(blend_steps) / static_cast<double>(pixels) : 0.0;
@@ -45,7 +47,7 @@ class CpuRasterizer final : public Rasterizer {
     result->median_depth = PlanarImage(W, H, 1);
     result->alpha = PlanarImage(W, H, 1);
     result->features = D > 0 ? PlanarImage(W, H, D) : PlanarImage();
-    auto state = std::make_shared<RenderBackwardState>();
+    auto state = std::make_shared<CpuBackwardState>();
     render_impl::RasterOutputs<float> out;
     out.colour = result->colour.data.data();
     out.depth = result->depth.data.data();
@@ -72,28 +74,15 @@ class CpuRasterizer final : public Rasterizer {
                 const RenderResult& result, const RenderGradients& output_grads,
                 GaussianGradients* grads, std::string* why) const override {
     math::SplatCamera<float> cam;
-    if (!render_impl::render_camera(view, settings, &cam, why)) return false;
-    if (!result.backward_state) return fail(why, "backward: no forward state");
-    const auto& st = result.backward_state->raster;
+    int D = 0;
+    if (!render_impl::check_backward_inputs(map, view, settings, result, output_grads, &cam, &D, why)) return false;
+    const auto* state = dynamic_cast<const CpuBackwardState*>(result.backward_state.get());
+    if (state == nullptr) return fail(why, "backward: the result is not from the CPU rasteriser's forward pass");
+    const auto& st = state->raster;
     if (st.projected.size() != map.size() || st.width != cam.width || st.height != cam.height) {
       return fail(why, "backward: the forward pass was for another map or view");
     }
-    const int D = settings.features ? map.feature_dim : 0;
     if (grads->opacity_logits.size() != map.size()) grads->reset(map);
-    auto check = [&](const PlanarImage& g, const PlanarImage& like, const char* name) {
-      if (g.empty()) return true;
-      if (!g.same_shape(like)) {
-        return fail(why, std::string("backward: gradient of ") + name + " has the wrong shape");
-      }
-      return true;
-    };
-    if (!check(output_grads.colour, result.colour, "colour") ||
-        !check(output_grads.depth, result.depth, "depth") ||
-        !check(output_grads.median_depth, result.median_depth, "median depth") ||
-        !check(output_grads.alpha, result.alpha, "alpha") ||
-        (D > 0 && !check(output_grads.features, result.features, "features"))) {
-      return false;
-    }
     render_impl::RasterOutputs<float> out;
     out.colour = const_cast<float*>(result.colour.data.data());
     out.depth = const_cast<float*>(result.depth.data.data());

@@ -619,4 +619,61 @@ FSLAM_HD void splat_pixel_backward(const ProjectedGaussian<T>& g, T px, T py, T 
   grad->v -= g_depth_here * g.plane[1];
 }
 
+// One splat's share of one pixel's backward pass (paper: per-splat backward, eq.
+// transmittance_recover), front to back. The pixel's state: *trans the transmittance before the
+// splat, pre [4 + D] the colour, depth and features composited in front of it, both rolled past
+// the splat here; tot [4 + D] the pixel's final composite without the background; gp the output
+// gradients (colour 3, depth, then D features when feature_grads); g_background =
+// -T_final sum_c g_c background_c; g_alpha_out = T_final dL/d(accumulated opacity); g_median
+// dL/d(median depth) when this splat gives the pixel's median depth, else 0. f [D] the splat's
+// features. Adds to the splat's 2D gradient, its feature gradient [D] and the pruning cues
+// sum |dL_rgb/dalpha|, sum |dL_feat/dalpha| (eq. importance, sem_importance).
+template <typename T>
+FSLAM_HD void splat_pair_backward(const ProjectedGaussian<T>& g, const T* f, int D, bool feature_grads, T px,
+                                  T py, T alpha, T gaussian, const T* tot, const T* gp, T g_background,
+                                  T g_alpha_out, T g_median, T* trans, T* pre, ProjectedGradient<T>* pg,
+                                  T* feature_grad, T* imp_rgb, T* imp_feat) {
+  const T Ti = *trans;
+  const T w = alpha * Ti;
+  const T one_minus = T(1) - alpha;
+  const T inv_one_minus = T(1) / one_minus;
+  const T d = splat_planar_depth(g, px, py);
+  // dL/dalpha_i = sum_ch g_ch (T_i v_ch - S_ch / (1 - alpha_i)) with S the part composited
+  // behind splat i (S = total - prefix - w v), plus the background and accumulated-opacity terms
+  // (over 1 - alpha_i). Each channel group is summed as
+  // T_i sum g v - (sum g (total - prefix) - w sum g v) / (1 - alpha_i).
+  T gv = T(0), g_rest = T(0);
+  for (int c = 0; c < 3; ++c) {
+    pg->colour[c] += w * gp[c];
+    gv += gp[c] * g.colour[c];
+    g_rest += gp[c] * (tot[c] - pre[c]);
+    pre[c] += w * g.colour[c];
+  }
+  const T g_alpha_rgb = Ti * gv - (g_rest - w * gv - g_background) * inv_one_minus;
+  const T g_depth_out = gp[3];
+  T g_depth_here = w * g_depth_out;
+  const T g_alpha_other =
+      g_depth_out * (Ti * d - (tot[3] - pre[3] - w * d) * inv_one_minus) + g_alpha_out * inv_one_minus;
+  pre[3] += w * d;
+  g_depth_here += g_median;
+  T g_alpha_feat = T(0);
+  if (feature_grads) {
+    T fv = T(0), f_rest = T(0);
+    for (int c = 0; c < D; ++c) {
+      const T gf = gp[4 + c];
+      feature_grad[c] += w * gf;
+      fv += gf * f[c];
+      f_rest += gf * (tot[4 + c] - pre[4 + c]);
+      pre[4 + c] += w * f[c];
+    }
+    g_alpha_feat = Ti * fv - (f_rest - w * fv) * inv_one_minus;
+  } else {
+    for (int c = 0; c < D; ++c) pre[4 + c] += w * f[c];
+  }
+  *imp_rgb += g_alpha_rgb < T(0) ? -g_alpha_rgb : g_alpha_rgb;
+  *imp_feat += g_alpha_feat < T(0) ? -g_alpha_feat : g_alpha_feat;
+  splat_pixel_backward(g, px, py, alpha, gaussian, g_alpha_rgb + g_alpha_feat + g_alpha_other, g_depth_here, pg);
+  *trans = Ti * one_minus;  // past splat i; the prefix sums were rolled above
+}
+
 }  // namespace fslam::core::math

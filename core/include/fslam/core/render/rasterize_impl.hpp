@@ -106,6 +106,25 @@ inline bool render_camera(const RenderView& view, const RenderSettings& settings
   return true;
 }
 
+// The checks every rasteriser's backward() makes: a valid view, a forward state, output
+// gradients (empty = zero) shaped like the outputs. Sets the camera and the rendered feature
+// channels D.
+inline bool check_backward_inputs(const GaussianMap& map, const RenderView& view, const RenderSettings& settings,
+                                  const RenderResult& result, const RenderGradients& output_grads,
+                                  math::SplatCamera<float>* cam, int* D, std::string* why) {
+  if (!render_camera(view, settings, cam, why)) return false;
+  if (!result.backward_state) return fail(why, "backward: no forward state");
+  *D = settings.features ? map.feature_dim : 0;
+  const auto check = [&](const PlanarImage& g, const PlanarImage& like, const char* name) {
+    if (g.empty() || g.same_shape(like)) return true;
+    return fail(why, std::string("backward: gradient of ") + name + " has the wrong shape");
+  };
+  return check(output_grads.colour, result.colour, "colour") && check(output_grads.depth, result.depth, "depth") &&
+         check(output_grads.median_depth, result.median_depth, "median depth") &&
+         check(output_grads.alpha, result.alpha, "alpha") &&
+         (*D == 0 || check(output_grads.features, result.features, "features"));
+}
+
 // Bins the projected Gaussians (st.projected, radius 0 = culled) into depth-sorted tile lists
 // given each one's tile rectangle (rect: [N, 4], splat_tile_rect). The CUDA rasteriser's bin_fwd
 // keeps this order (depth of the mean, ties by id) so that both composite the same lists.
@@ -366,53 +385,13 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
             const T alpha = math::splat_alpha(g, T(px), T(py), &gauss);
             if (alpha == T(0)) continue;
             touched = true;
-            const T Ti = trans[lp];
-            const T w = alpha * Ti;
-            const T one_minus = T(1) - alpha;
-            const T inv_one_minus = T(1) / one_minus;
             T* pre = prefix.data() + static_cast<std::size_t>(lp) * channels;
             const T* tot = total.data() + static_cast<std::size_t>(lp) * channels;
             const T* gp = pixel_grads.data() + static_cast<std::size_t>(lp) * grad_channels;
-            const T d = math::splat_planar_depth(g, T(px), T(py));
-            // dL/dalpha_i = sum_ch g_ch (T_i v_ch - S_ch / (1 - alpha_i)) with S the part
-            // composited behind splat i (S = total - prefix - w v), plus the background and
-            // accumulated-opacity terms (over 1 - alpha_i). Each channel group is summed as
-            // T_i sum g v - (sum g (total - prefix) - w sum g v) / (1 - alpha_i).
-            T gv = T(0), g_rest = T(0);
-            for (int c = 0; c < 3; ++c) {
-              pg.colour[c] += w * gp[c];
-              gv += gp[c] * g.colour[c];
-              g_rest += gp[c] * (tot[c] - pre[c]);
-              pre[c] += w * g.colour[c];
-            }
-            const T g_alpha_rgb = Ti * gv - (g_rest - w * gv - g_background[lp]) * inv_one_minus;
-            const T g_depth_out = gp[3];
-            T g_depth_here = w * g_depth_out;
-            T g_alpha_other = g_depth_out * (Ti * d - (tot[3] - pre[3] - w * d) * inv_one_minus) +
-                              g_alpha_out[lp] * inv_one_minus;
-            pre[3] += w * d;
-            if (pixel_median[lp] == j) g_depth_here += grad_out.median_depth[py * W + px];
-            T g_alpha_feat = T(0);
-            if (feature_grads) {
-              T fv = T(0), f_rest = T(0);
-              for (int c = 0; c < D; ++c) {
-                const T gf = gp[4 + c];
-                feature_grad[c] += w * gf;
-                fv += gf * f[c];
-                f_rest += gf * (tot[4 + c] - pre[4 + c]);
-                pre[4 + c] += w * f[c];
-              }
-              g_alpha_feat = Ti * fv - (f_rest - w * fv) * inv_one_minus;
-            } else {
-              for (int c = 0; c < D; ++c) pre[4 + c] += w * f[c];
-            }
-            imp_rgb += std::abs(g_alpha_rgb);
-            imp_feat += std::abs(g_alpha_feat);
-            const T g_alpha = g_alpha_rgb + g_alpha_feat + g_alpha_other;
-            math::splat_pixel_backward(g, T(px), T(py), alpha, gauss, g_alpha, g_depth_here, &pg);
-            // Roll the pixel's transmittance past splat i (eq. transmittance_recover); the
-            // prefix sums were rolled above.
-            trans[lp] = Ti * one_minus;
+            const T g_median = pixel_median[lp] == j ? grad_out.median_depth[py * W + px] : T(0);
+            math::splat_pair_backward(g, f, D, feature_grads, T(px), T(py), alpha, gauss, tot, gp,
+                                      g_background[lp], g_alpha_out[lp], g_median, &trans[lp], pre, &pg,
+                                      feature_grad.data(), &imp_rgb, &imp_feat);
           }
         }
         if (!touched) continue;

@@ -38,7 +38,10 @@ struct RenderStats {
   double mean_splats_per_pixel() const;
 };
 
-struct RenderBackwardState;  // the backend's bookkeeping from forward to backward
+// The backend's bookkeeping from forward to backward; each rasteriser derives its own.
+struct RenderBackwardState {
+  virtual ~RenderBackwardState() = default;
+};
 
 struct RenderResult {
   PlanarImage colour;        // [3, H, W] RGB in [0, 1] over the background
