@@ -1,6 +1,6 @@
-// The CUDA rasteriser: projection, binning, the depth sort and compositing on the GPU with core's
-// math, in the CPU rasteriser's order (depth of the mean, ties by id), so both composite the same
-// lists. Forward only: gradients (mapping) run on the CPU.
+// The CUDA rasteriser: projection, binning, the depth sort, compositing and the backward pass on
+// the GPU with core's math, in the CPU rasteriser's order (depth of the mean, ties by id), so both
+// composite the same lists and differ only by float rounding and the backward's summation order.
 #include <algorithm>
 #include <mutex>
 
@@ -18,6 +18,7 @@ namespace {
 namespace math = core::math;
 namespace render_impl = core::render_impl;
 static_assert(kRasterTile == render_impl::kTileSize, "CPU and CUDA tiles must match");
+static_assert(kGrad2dFixed == render_impl::kGrad2dFixed, "CPU and CUDA 2D gradients must match");
 
 template <typename T>
 cudaError_t upload(DeviceBuffer<T>* buffer, const std::vector<T>& host, cudaStream_t stream) {
@@ -27,6 +28,48 @@ cudaError_t upload(DeviceBuffer<T>* buffer, const std::vector<T>& host, cudaStre
   }
   return status;
 }
+
+// What one forward pass leaves on the device for its backward pass.
+struct CudaBackwardState final : core::RenderBackwardState {
+  std::size_t count = 0;
+  int width = 0, height = 0, tiles_x = 0, tiles_y = 0, feature_dim = 0;
+  DeviceBuffer<float> means, rotations, log_scales, opacity_logits, sh, filter_3d, features;
+  DeviceBuffer<math::ProjectedGaussian<float>> projected;
+  DeviceBuffer<int> rect;
+  DeviceBuffer<std::uint32_t> touched;
+  DeviceBuffer<std::uint8_t> visible;
+  BinBuffers bins;
+  DeviceBuffer<float> outputs;  // colour 3, depth, median depth, alpha, then D feature planes
+  DeviceBuffer<std::int32_t> pixel_end, pixel_median;
+  DeviceBuffer<unsigned long long> counters;
+  bool has_filter = false;
+  int sh_degree = 0;
+
+  math::SplatScene<float> scene() {
+    math::SplatScene<float> s;
+    s.count = count;
+    s.means = means.data();
+    s.rotations = rotations.data();
+    s.log_scales = log_scales.data();
+    s.opacity_logits = opacity_logits.data();
+    s.sh = sh.data();
+    s.features = feature_dim > 0 ? features.data() : nullptr;
+    s.filter_3d = has_filter ? filter_3d.data() : nullptr;
+    s.sh_degree = sh_degree;
+    s.feature_dim = feature_dim;
+    return s;
+  }
+  math::RasterOutputs<float> planes() {
+    const std::size_t plane = static_cast<std::size_t>(width) * height;
+    math::RasterOutputs<float> out;
+    out.colour = outputs.data();
+    out.depth = out.colour + 3 * plane;
+    out.median_depth = out.depth + plane;
+    out.alpha = out.median_depth + plane;
+    out.features = out.alpha + plane;
+    return out;
+  }
+};
 
 class CudaRasterizer final : public core::Rasterizer {
  public:
@@ -45,71 +88,82 @@ class CudaRasterizer final : public core::Rasterizer {
       return core::fail(why, "the CUDA rasteriser renders at most " + std::to_string(kMaxFeatureChannels) +
                                  " feature channels (the map has " + std::to_string(D) + ")");
     }
-    const std::lock_guard<std::mutex> lock(mutex_);  // one render at a time on this stream
+    const std::lock_guard<std::mutex> lock(mutex_);  // one pass at a time on this stream
     cudaError_t status = cudaSetDevice(device_);
     if (status == cudaSuccess) status = render(map, cam, settings, D, result);
     if (status != cudaSuccess) return core::fail(why, "CUDA render failed (" + describe(status) + ")");
     return true;
   }
 
-  bool backward(const core::GaussianMap&, const core::RenderView&, const core::RenderSettings&,
-                const core::RenderResult&, const core::RenderGradients&, core::GaussianGradients*,
-                std::string* why) const override {
-    return core::fail(why, "the CUDA rasteriser renders only (no backward pass yet); mapping uses the CPU rasteriser");
+  bool backward(const core::GaussianMap& map, const core::RenderView& view, const core::RenderSettings& settings,
+                const core::RenderResult& result, const core::RenderGradients& output_grads,
+                core::GaussianGradients* grads, std::string* why) const override {
+    math::SplatCamera<float> cam;
+    int D = 0;
+    if (!render_impl::check_backward_inputs(map, view, settings, result, output_grads, &cam, &D, why)) return false;
+    auto* state = const_cast<CudaBackwardState*>(dynamic_cast<const CudaBackwardState*>(result.backward_state.get()));
+    if (state == nullptr) return core::fail(why, "backward: the result is not from the CUDA rasteriser's forward pass");
+    if (state->count != map.size() || state->width != cam.width || state->height != cam.height ||
+        state->feature_dim != D) {
+      return core::fail(why, "backward: the forward pass was for another map or view");
+    }
+    if (grads->opacity_logits.size() != map.size()) grads->reset(map);
+    const std::lock_guard<std::mutex> lock(mutex_);
+    cudaError_t status = cudaSetDevice(device_);
+    if (status == cudaSuccess) status = gradients(map, cam, settings, output_grads, state, grads);
+    if (status != cudaSuccess) return core::fail(why, "CUDA backward failed (" + describe(status) + ")");
+    return true;
   }
 
  private:
   cudaError_t render(const core::GaussianMap& map, const math::SplatCamera<float>& cam,
                      const core::RenderSettings& settings, int D, core::RenderResult* result) const {
+    auto state = std::make_shared<CudaBackwardState>();
+    CudaBackwardState& st = *state;
     const std::size_t n = map.size(), slots = std::max<std::size_t>(n, 1);
-    const int W = cam.width, H = cam.height;
-    const int tiles_x = (W + kRasterTile - 1) / kRasterTile, tiles_y = (H + kRasterTile - 1) / kRasterTile;
-    cudaError_t status = upload(&means_, map.means, stream_);
-    if (status == cudaSuccess) status = upload(&rotations_, map.rotations, stream_);
-    if (status == cudaSuccess) status = upload(&log_scales_, map.log_scales, stream_);
-    if (status == cudaSuccess) status = upload(&opacity_logits_, map.opacity_logits, stream_);
-    if (status == cudaSuccess) status = upload(&sh_, map.sh, stream_);
-    if (status == cudaSuccess) status = upload(&filter_3d_, map.filter_3d, stream_);
-    if (status == cudaSuccess && D > 0) status = upload(&features_, map.features, stream_);
-    if (status == cudaSuccess) status = projected_.resize(slots);
-    if (status == cudaSuccess) status = rect_.resize(4 * slots);
-    if (status == cudaSuccess) status = touched_.resize(slots);
-    if (status == cudaSuccess) status = visible_.resize(slots);
-    math::SplatScene<float> scene;
-    scene.count = n;
-    scene.means = means_.data();
-    scene.rotations = rotations_.data();
-    scene.log_scales = log_scales_.data();
-    scene.opacity_logits = opacity_logits_.data();
-    scene.sh = sh_.data();
-    scene.features = D > 0 ? features_.data() : nullptr;
-    scene.filter_3d = map.filter_3d.empty() ? nullptr : filter_3d_.data();
-    scene.sh_degree = map.sh_degree;
-    scene.feature_dim = D;
+    st.count = n;
+    st.width = cam.width;
+    st.height = cam.height;
+    st.tiles_x = (cam.width + kRasterTile - 1) / kRasterTile;
+    st.tiles_y = (cam.height + kRasterTile - 1) / kRasterTile;
+    st.feature_dim = D;
+    st.has_filter = !map.filter_3d.empty();
+    st.sh_degree = map.sh_degree;
+    cudaError_t status = upload(&st.means, map.means, stream_);
+    if (status == cudaSuccess) status = upload(&st.rotations, map.rotations, stream_);
+    if (status == cudaSuccess) status = upload(&st.log_scales, map.log_scales, stream_);
+    if (status == cudaSuccess) status = upload(&st.opacity_logits, map.opacity_logits, stream_);
+    if (status == cudaSuccess) status = upload(&st.sh, map.sh, stream_);
+    if (status == cudaSuccess) status = upload(&st.filter_3d, map.filter_3d, stream_);
+    if (status == cudaSuccess && D > 0) status = upload(&st.features, map.features, stream_);
+    if (status == cudaSuccess) status = st.projected.resize(slots);
+    if (status == cudaSuccess) status = st.rect.resize(4 * slots);
+    if (status == cudaSuccess) status = st.touched.resize(slots);
+    if (status == cudaSuccess) status = st.visible.resize(slots);
+    const math::SplatScene<float> scene = st.scene();
     if (status == cudaSuccess) {
-      status = project_fwd(scene, cam, kRasterTile, tiles_x, tiles_y, projected_.data(), rect_.data(),
-                           touched_.data(), visible_.data(), stream_);
+      status = project_fwd(scene, cam, kRasterTile, st.tiles_x, st.tiles_y, st.projected.data(), st.rect.data(),
+                           st.touched.data(), st.visible.data(), stream_);
     }
     std::uint32_t entries = 0;
     if (status == cudaSuccess) {
-      status = bin_fwd(static_cast<int>(n), projected_.data(), rect_.data(), touched_.data(), tiles_x, tiles_y,
-                       &bins_, &entries, stream_);
+      status = bin_fwd(static_cast<int>(n), st.projected.data(), st.rect.data(), st.touched.data(), st.tiles_x,
+                       st.tiles_y, &st.bins, &entries, stream_);
     }
+    const int W = cam.width, H = cam.height;
     const std::size_t plane = static_cast<std::size_t>(W) * H;
-    if (status == cudaSuccess) status = outputs_.resize(plane * (6 + static_cast<std::size_t>(D)));
-    if (status == cudaSuccess) status = counters_.resize(2);
+    if (status == cudaSuccess) status = st.outputs.resize(plane * (6 + static_cast<std::size_t>(D)));
+    if (status == cudaSuccess) status = st.pixel_end.resize(std::max<std::size_t>(plane, 1));
+    if (status == cudaSuccess) status = st.pixel_median.resize(std::max<std::size_t>(plane, 1));
+    if (status == cudaSuccess) status = st.counters.resize(2);
     if (status == cudaSuccess) {
-      status = cudaMemsetAsync(counters_.data(), 0, 2 * sizeof(unsigned long long), stream_);
+      status = cudaMemsetAsync(st.counters.data(), 0, 2 * sizeof(unsigned long long), stream_);
     }
-    math::RasterOutputs<float> out;
-    out.colour = outputs_.data();
-    out.depth = out.colour + 3 * plane;
-    out.median_depth = out.depth + plane;
-    out.alpha = out.median_depth + plane;
-    out.features = out.alpha + plane;
+    const math::RasterOutputs<float> out = st.planes();
     if (status == cudaSuccess) {
-      status = composite_fwd(projected_.data(), bins_.ranges.data(), bins_.sorted_ids.data(), scene.features, D, W,
-                             H, tiles_x, tiles_y, settings.background.data(), out, counters_.data(), stream_);
+      status = composite_fwd(st.projected.data(), st.bins.ranges.data(), st.bins.sorted_ids.data(), scene.features,
+                             D, W, H, st.tiles_x, st.tiles_y, settings.background.data(), out, st.pixel_end.data(),
+                             st.pixel_median.data(), st.counters.data(), stream_);
     }
     result->colour = core::PlanarImage(W, H, 3);
     result->depth = core::PlanarImage(W, H, 1);
@@ -128,8 +182,8 @@ class CudaRasterizer final : public core::Rasterizer {
     copy_back(result->median_depth.data.data(), out.median_depth, plane * sizeof(float));
     copy_back(result->alpha.data.data(), out.alpha, plane * sizeof(float));
     copy_back(result->features.data.data(), out.features, static_cast<std::size_t>(D) * plane * sizeof(float));
-    copy_back(result->visible.data(), visible_.data(), n);
-    copy_back(counters, counters_.data(), sizeof(counters));
+    copy_back(result->visible.data(), st.visible.data(), n);
+    copy_back(counters, st.counters.data(), sizeof(counters));
     if (status == cudaSuccess) status = cudaStreamSynchronize(stream_);
     if (status != cudaSuccess) return status;
     result->stats.gaussians = n;
@@ -138,22 +192,69 @@ class CudaRasterizer final : public core::Rasterizer {
     result->stats.tile_entries = entries;
     result->stats.evaluated_pairs = counters[0];
     result->stats.blend_steps = counters[1];
-    result->backward_state = nullptr;
+    result->backward_state = std::move(state);
+    return cudaSuccess;
+  }
+
+  cudaError_t gradients(const core::GaussianMap& map, const math::SplatCamera<float>& cam,
+                        const core::RenderSettings& settings, const core::RenderGradients& output_grads,
+                        CudaBackwardState* st, core::GaussianGradients* grads) const {
+    const int D = st->feature_dim;
+    const std::size_t n = st->count;
+    if (n == 0) return cudaSuccess;
+    // The output gradients on the device (empty images are zero gradients).
+    DeviceBuffer<float> g_colour, g_depth, g_median, g_alpha, g_features;
+    RasterGradsView view;
+    cudaError_t status = cudaSuccess;
+    const auto put = [&](DeviceBuffer<float>* buffer, const core::PlanarImage& image, const float** pointer) {
+      if (status != cudaSuccess || image.empty()) return;
+      status = upload(buffer, image.data, stream_);
+      *pointer = buffer->data();
+    };
+    put(&g_colour, output_grads.colour, &view.colour);
+    put(&g_depth, output_grads.depth, &view.depth);
+    put(&g_median, output_grads.median_depth, &view.median_depth);
+    put(&g_alpha, output_grads.alpha, &view.alpha);
+    if (D > 0) put(&g_features, output_grads.features, &view.features);
+    const int stride = kGrad2dFixed + D;
+    const int K = (map.sh_degree + 1) * (map.sh_degree + 1);
+    const int P = 11 + 3 * K + D + 2;
+    DeviceBuffer<float> accum, per_gaussian;
+    if (status == cudaSuccess) status = accum.resize(n * stride);
+    if (status == cudaSuccess) status = cudaMemsetAsync(accum.data(), 0, n * stride * sizeof(float), stream_);
+    if (status == cudaSuccess) status = per_gaussian.resize(n * P);
+    const math::SplatScene<float> scene = st->scene();
+    if (status == cudaSuccess) {
+      status = composite_bwd(st->projected.data(), st->bins.ranges.data(), st->bins.sorted_ids.data(), scene.features,
+                             D, st->width, st->height, st->tiles_x, st->tiles_y, settings.background.data(),
+                             st->planes(), st->pixel_end.data(), st->pixel_median.data(), view, accum.data(), stream_);
+    }
+    if (status == cudaSuccess) status = project_bwd(scene, cam, st->projected.data(), accum.data(), D, per_gaussian.data(), stream_);
+    std::vector<float> host(n * P);
+    if (status == cudaSuccess) {
+      status = cudaMemcpyAsync(host.data(), per_gaussian.data(), host.size() * sizeof(float), cudaMemcpyDeviceToHost,
+                               stream_);
+    }
+    if (status == cudaSuccess) status = cudaStreamSynchronize(stream_);
+    if (status != cudaSuccess) return status;
+    const int sh_stride = 3 * K;
+    for (std::size_t i = 0; i < n; ++i) {
+      const float* o = &host[i * P];
+      for (int k = 0; k < 3; ++k) grads->means[3 * i + k] += o[k];
+      for (int k = 0; k < 4; ++k) grads->rotations[4 * i + k] += o[3 + k];
+      for (int k = 0; k < 3; ++k) grads->log_scales[3 * i + k] += o[7 + k];
+      grads->opacity_logits[i] += o[10];
+      for (int k = 0; k < sh_stride; ++k) grads->sh[i * sh_stride + k] += o[11 + k];
+      for (int c = 0; c < D; ++c) grads->features[i * map.feature_dim + c] += o[11 + sh_stride + c];
+      grads->importance_rgb[i] += o[11 + sh_stride + D];
+      grads->importance_feature[i] += o[12 + sh_stride + D];
+    }
     return cudaSuccess;
   }
 
   int device_;
   cudaStream_t stream_;
   mutable std::mutex mutex_;
-  // Device copies of the map and the render's buffers, grown as needed and reused.
-  mutable DeviceBuffer<float> means_, rotations_, log_scales_, opacity_logits_, sh_, filter_3d_, features_;
-  mutable DeviceBuffer<math::ProjectedGaussian<float>> projected_;
-  mutable DeviceBuffer<int> rect_;
-  mutable DeviceBuffer<std::uint32_t> touched_;
-  mutable DeviceBuffer<std::uint8_t> visible_;
-  mutable BinBuffers bins_;
-  mutable DeviceBuffer<float> outputs_;
-  mutable DeviceBuffer<unsigned long long> counters_;
 };
 
 }  // namespace

@@ -20,7 +20,18 @@ cudaError_t unproject_depth_fwd(const core::math::Intrinsics& k, const float* de
 
 // ---------------------------------------------------------------- rasteriser (forward)
 constexpr int kRasterTile = 16;           // pixels per tile side, as the CPU rasteriser's kTileSize
-constexpr int kMaxFeatureChannels = 64;   // D the compositing kernel holds per pixel
+constexpr int kMaxFeatureChannels = 64;   // D the compositing kernels hold per pixel
+constexpr int kGrad2dFixed = 14;          // per Gaussian 2D gradient: u, v, conic 3, opacity, depth,
+                                          // plane 2, colour 3, importance rgb and feature; then D
+
+// Device gradients of the outputs (null = zero); shapes as core::math::RasterOutputs.
+struct RasterGradsView {
+  const float* colour = nullptr;
+  const float* depth = nullptr;
+  const float* median_depth = nullptr;
+  const float* alpha = nullptr;
+  const float* features = nullptr;
+};
 
 // Projects every Gaussian of `scene` (device pointers; radius 0 = culled): its tile rectangle
 // ([N, 4]), the number of tiles it touches and whether it is visible (1) at all.
@@ -45,11 +56,27 @@ cudaError_t bin_fwd(int count, const core::math::ProjectedGaussian<float>* proje
                     std::uint32_t* entries, cudaStream_t stream);
 
 // Composites the depth-sorted tile lists into `out` (device planes, all set; features [D, H, W]);
-// counters[0] += pairs evaluated, counters[1] += blended.
+// per pixel the list index where it ended (the list's length when it did not) and of its median
+// splat (-1 none); counters[0] += pairs evaluated, counters[1] += blended.
 cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
-                          const core::math::RasterOutputs<float>& out, unsigned long long* counters,
+                          const core::math::RasterOutputs<float>& out, std::int32_t* pixel_end,
+                          std::int32_t* pixel_median, unsigned long long* counters, cudaStream_t stream);
+
+// Backward of the compositing: adds each Gaussian's 2D gradient into accum [N, kGrad2dFixed + D]
+// (zeroed by the caller), from the forward's outputs, per-pixel ends and medians.
+cudaError_t composite_bwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
+                          const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
+                          int height, int tiles_x, int tiles_y, const float background[3],
+                          const core::math::RasterOutputs<float>& out, const std::int32_t* pixel_end,
+                          const std::int32_t* pixel_median, const RasterGradsView& grads, float* accum,
                           cudaStream_t stream);
+
+// Backward of the projection: out [N, 11 + 3K + D + 2] per Gaussian (mean, rotation, log-scale,
+// opacity logit, SH, features, importance rgb and feature), zero for culled ones.
+cudaError_t project_bwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam,
+                        const core::math::ProjectedGaussian<float>* projected, const float* accum, int feature_dim,
+                        float* out, cudaStream_t stream);
 
 }  // namespace fslam::cuda

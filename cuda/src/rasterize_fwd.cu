@@ -73,7 +73,8 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
                                  const uint2* __restrict__ tile_ranges,
                                  const std::uint32_t* __restrict__ tile_ids, const float* __restrict__ features,
                                  int feature_dim, int width, int height, int tiles_x, float3 background,
-                                 math::RasterOutputs<float> out, unsigned long long* __restrict__ counters) {
+                                 math::RasterOutputs<float> out, std::int32_t* __restrict__ pixel_end,
+                                 std::int32_t* __restrict__ pixel_median, unsigned long long* __restrict__ counters) {
   constexpr int kBatch = kTile * kTile;
   __shared__ math::ProjectedGaussian<float> batch[kBatch];
   __shared__ std::uint32_t batch_ids[kBatch];
@@ -89,6 +90,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
   for (int c = 0; c < channels; ++c) acc[c] = 0.0f;
   float median = 0.0f;
   bool has_median = false;
+  std::int32_t end_index = static_cast<std::int32_t>(end - begin), median_index = -1;
   unsigned long long evaluated = 0, blended = 0;
   for (std::uint32_t first = begin; first < end; first += kBatch) {
     if (__syncthreads_count(done ? 1 : 0) == kBatch) break;  // every pixel of the tile has ended
@@ -111,6 +113,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
       if (alpha == 0.0f) continue;
       const float next = trans * (1.0f - alpha);
       if (next < math::kTransmittanceMin) {
+        end_index = static_cast<std::int32_t>(first - begin) + k;
         done = true;
         break;
       }
@@ -126,6 +129,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
       if (!has_median && next < 0.5f) {
         has_median = true;
         median = d;
+        median_index = static_cast<std::int32_t>(first - begin) + k;
       }
       trans = next;
     }
@@ -139,8 +143,142 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
   out.median_depth[pix] = median;
   out.alpha[pix] = 1.0f - trans;
   for (int c = 0; c < feature_dim; ++c) out.features[c * plane + pix] = acc[4 + c];
+  pixel_end[pix] = end_index;
+  pixel_median[pix] = median_index;
   atomicAdd(&counters[0], evaluated);
   atomicAdd(&counters[1], blended);
+}
+
+// The backward pass per pixel, front to back over the same lists as the forward pass, each
+// splat-pixel pair through the shared math::splat_pair_backward (paper eq. transmittance_recover);
+// a pair's contribution to its Gaussian's 2D gradient is added with atomics (summation order is
+// not fixed, unlike the CPU's per-thread buffers).
+template <int kTile>
+__global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __restrict__ projected,
+                                     const uint2* __restrict__ tile_ranges, const std::uint32_t* __restrict__ tile_ids,
+                                     const float* __restrict__ features, int feature_dim, int width, int height,
+                                     int tiles_x, float3 background, math::RasterOutputs<float> out,
+                                     const std::int32_t* __restrict__ pixel_end,
+                                     const std::int32_t* __restrict__ pixel_median, RasterGradsView grads,
+                                     float* __restrict__ accum) {
+  constexpr int kBatch = kTile * kTile;
+  __shared__ math::ProjectedGaussian<float> batch[kBatch];
+  __shared__ std::uint32_t batch_ids[kBatch];
+  const int tile = blockIdx.x;
+  const int px = (tile % tiles_x) * kTile + static_cast<int>(threadIdx.x);
+  const int py = (tile / tiles_x) * kTile + static_cast<int>(threadIdx.y);
+  const int rank = static_cast<int>(threadIdx.y) * kTile + static_cast<int>(threadIdx.x);
+  const bool inside = px < width && py < height;
+  const std::uint32_t begin = tile_ranges[tile].x, end = tile_ranges[tile].y;
+  const int D = feature_dim;
+  const bool feature_grads = grads.features != nullptr && D > 0;
+  const long plane = static_cast<long>(width) * height, pix = static_cast<long>(py) * width + px;
+  float tot[4 + kMaxFeatureChannels], gp[4 + kMaxFeatureChannels], pre[4 + kMaxFeatureChannels];
+  float fg[kMaxFeatureChannels];
+  float trans = 1.0f, g_background = 0.0f, g_alpha_out = 0.0f;
+  std::int32_t last = 0, median = -1;
+  for (int c = 0; c < 4 + D; ++c) tot[c] = gp[c] = pre[c] = 0.0f;
+  if (inside) {
+    const float t_final = 1.0f - out.alpha[pix];
+    const float bg[3] = {background.x, background.y, background.z};
+    for (int c = 0; c < 3; ++c) {
+      tot[c] = out.colour[c * plane + pix] - t_final * bg[c];
+      gp[c] = grads.colour != nullptr ? grads.colour[c * plane + pix] : 0.0f;
+      g_background -= gp[c] * bg[c] * t_final;
+    }
+    tot[3] = out.depth[pix];
+    gp[3] = grads.depth != nullptr ? grads.depth[pix] : 0.0f;
+    for (int c = 0; c < D; ++c) {
+      tot[4 + c] = out.features[c * plane + pix];
+      if (feature_grads) gp[4 + c] = grads.features[c * plane + pix];
+    }
+    g_alpha_out = grads.alpha != nullptr ? grads.alpha[pix] * t_final : 0.0f;
+    last = pixel_end[pix];
+    median = grads.median_depth != nullptr ? pixel_median[pix] : -1;
+  }
+  const int stride = kGrad2dFixed + D;
+  for (std::uint32_t first = begin; first < end; first += kBatch) {
+    const int offset = static_cast<int>(first - begin);
+    if (__syncthreads_count(offset < last ? 1 : 0) == 0) break;  // every pixel is past its end
+    const std::uint32_t mine = first + static_cast<std::uint32_t>(rank);
+    if (mine < end) {
+      batch_ids[rank] = tile_ids[mine];
+      batch[rank] = projected[batch_ids[rank]];
+    }
+    __syncthreads();
+    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), end - first));
+    for (int k = 0; k < n && offset + k < last; ++k) {
+      const math::ProjectedGaussian<float>& g = batch[k];
+      int y0, y1, x0, x1;
+      math::splat_row_range(g, &y0, &y1);
+      if (py < y0 || py >= y1) continue;
+      if (!math::splat_row_span(g, static_cast<float>(py), &x0, &x1) || px < x0 || px >= x1) continue;
+      float gauss;
+      const float alpha = math::splat_alpha(g, static_cast<float>(px), static_cast<float>(py), &gauss);
+      if (alpha == 0.0f) continue;
+      const std::uint32_t id = batch_ids[k];
+      const float* f = features + static_cast<long>(id) * feature_dim;
+      math::ProjectedGradient<float> pg{};
+      for (int c = 0; c < D; ++c) fg[c] = 0.0f;
+      float imp_rgb = 0.0f, imp_feat = 0.0f;
+      const float g_median = median == offset + k ? grads.median_depth[pix] : 0.0f;
+      math::splat_pair_backward(g, f, D, feature_grads, static_cast<float>(px), static_cast<float>(py), alpha, gauss,
+                                tot, gp, g_background, g_alpha_out, g_median, &trans, pre, &pg, fg, &imp_rgb,
+                                &imp_feat);
+      float* a = accum + static_cast<long>(id) * stride;
+      const float values[kGrad2dFixed] = {pg.u,        pg.v,        pg.conic[0], pg.conic[1], pg.conic[2],
+                                          pg.opacity,  pg.depth,    pg.plane[0], pg.plane[1], pg.colour[0],
+                                          pg.colour[1], pg.colour[2], imp_rgb,    imp_feat};
+      for (int c = 0; c < kGrad2dFixed; ++c) atomicAdd(&a[c], values[c]);
+      if (feature_grads)
+        for (int c = 0; c < D; ++c) atomicAdd(&a[kGrad2dFixed + c], fg[c]);
+    }
+  }
+}
+
+// Chains each Gaussian's summed 2D gradient to its parameters (math::project_gaussian_backward):
+// out [N, P] with P = 11 + 3K + D + 2: mean 3, rotation 4, log-scale 3, opacity logit, SH [K, 3],
+// features D, importance rgb and feature.
+__global__ void project_bwd_kernel(math::SplatScene<float> scene, math::SplatCamera<float> cam,
+                                   const math::ProjectedGaussian<float>* __restrict__ projected,
+                                   const float* __restrict__ accum, int D, float* __restrict__ out) {
+  const std::size_t i = static_cast<std::size_t>(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= scene.count) return;
+  const int K = (scene.sh_degree + 1) * (scene.sh_degree + 1);
+  const int P = 11 + 3 * K + D + 2, stride = kGrad2dFixed + D;
+  float* o = out + i * P;
+  for (int k = 0; k < P; ++k) o[k] = 0.0f;
+  if (projected[i].radius == 0) return;
+  const float* a = accum + i * stride;
+  math::ProjectedGradient<float> pg;
+  pg.u = a[0];
+  pg.v = a[1];
+  pg.conic[0] = a[2];
+  pg.conic[1] = a[3];
+  pg.conic[2] = a[4];
+  pg.opacity = a[5];
+  pg.depth = a[6];
+  pg.plane[0] = a[7];
+  pg.plane[1] = a[8];
+  pg.colour[0] = a[9];
+  pg.colour[1] = a[10];
+  pg.colour[2] = a[11];
+  math::ProjectedGaussian<float> again;
+  math::ProjectionTerms<float> terms;
+  math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
+                         scene.opacity_logits[i], scene.filter(i), scene.sh + i * scene.sh_stride(), scene.sh_degree,
+                         cam, &again, &terms);
+  math::GaussianParamGradient<float> pgrad;
+  math::project_gaussian_backward(scene.rotations + 4 * i, scene.filter(i), scene.sh + i * scene.sh_stride(),
+                                  scene.sh_degree, cam, again, terms, pg, &pgrad);
+  for (int k = 0; k < 3; ++k) o[k] = pgrad.mean[k];
+  for (int k = 0; k < 4; ++k) o[3 + k] = pgrad.quat[k];
+  for (int k = 0; k < 3; ++k) o[7 + k] = pgrad.log_scale[k];
+  o[10] = pgrad.opacity_logit;
+  for (int k = 0; k < 3 * K; ++k) o[11 + k] = pgrad.sh[k];
+  for (int c = 0; c < D; ++c) o[11 + 3 * K + c] = a[kGrad2dFixed + c];
+  o[11 + 3 * K + D] = a[12];
+  o[12 + 3 * K + D] = a[13];
 }
 
 }  // namespace
@@ -220,15 +358,41 @@ cudaError_t bin_fwd(int count, const core::math::ProjectedGaussian<float>* proje
 cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
-                          const core::math::RasterOutputs<float>& out, unsigned long long* counters,
-                          cudaStream_t stream) {
+                          const core::math::RasterOutputs<float>& out, std::int32_t* pixel_end,
+                          std::int32_t* pixel_median, unsigned long long* counters, cudaStream_t stream) {
   if (feature_dim < 0 || feature_dim > kMaxFeatureChannels) return cudaErrorInvalidValue;
   const int tiles = tiles_x * tiles_y;
   if (tiles <= 0) return cudaSuccess;
   const dim3 block(kRasterTile, kRasterTile);
   composite_kernel<kRasterTile><<<tiles, block, 0, stream>>>(
       projected, tile_ranges, tile_ids, features, feature_dim, width, height, tiles_x,
-      make_float3(background[0], background[1], background[2]), out, counters);
+      make_float3(background[0], background[1], background[2]), out, pixel_end, pixel_median, counters);
+  return cudaGetLastError();
+}
+
+cudaError_t composite_bwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
+                          const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
+                          int height, int tiles_x, int tiles_y, const float background[3],
+                          const core::math::RasterOutputs<float>& out, const std::int32_t* pixel_end,
+                          const std::int32_t* pixel_median, const RasterGradsView& grads, float* accum,
+                          cudaStream_t stream) {
+  if (feature_dim < 0 || feature_dim > kMaxFeatureChannels) return cudaErrorInvalidValue;
+  const int tiles = tiles_x * tiles_y;
+  if (tiles <= 0) return cudaSuccess;
+  const dim3 block(kRasterTile, kRasterTile);
+  composite_bwd_kernel<kRasterTile><<<tiles, block, 0, stream>>>(
+      projected, tile_ranges, tile_ids, features, feature_dim, width, height, tiles_x,
+      make_float3(background[0], background[1], background[2]), out, pixel_end, pixel_median, grads, accum);
+  return cudaGetLastError();
+}
+
+cudaError_t project_bwd(const core::math::SplatScene<float>& scene, const core::math::SplatCamera<float>& cam,
+                        const core::math::ProjectedGaussian<float>* projected, const float* accum, int feature_dim,
+                        float* out, cudaStream_t stream) {
+  if (scene.count == 0) return cudaSuccess;
+  constexpr int kBlock = 128;
+  const unsigned blocks = static_cast<unsigned>((scene.count + kBlock - 1) / kBlock);
+  project_bwd_kernel<<<blocks, kBlock, 0, stream>>>(scene, cam, projected, accum, feature_dim, out);
   return cudaGetLastError();
 }
 

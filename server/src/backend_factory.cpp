@@ -42,13 +42,8 @@ std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, Ras
     return nullptr;
   }
   if (choice == "cpu") return core::make_cpu_rasterizer();
-  if (use == RasterUse::kMapping) {
-    if (choice == "cuda") {
-      if (why) *why = "compute.backend is cuda but the CUDA rasteriser renders only (no backward pass yet); "
-                      "mapping needs cpu";
-      return nullptr;
-    }
-    if (notice) *notice = "mapping rasteriser: CPU (the CUDA rasteriser has no backward pass yet)";
+  if (use == RasterUse::kMapping && choice == "auto") {
+    if (notice) *notice = "mapping rasteriser: CPU (CUDA mapping is opt-in: --backend cuda; docs/mapping.md)";
     return core::make_cpu_rasterizer();
   }
 #if FSLAM_HAVE_CUDA

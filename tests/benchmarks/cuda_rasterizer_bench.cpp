@@ -22,15 +22,24 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// Median seconds of `repeats` forward passes of `rasterizer`; the last result in *result.
-double time_forward(const fslam::core::Rasterizer& rasterizer, const fslam::core::GaussianMap& map,
-                    const fslam::core::RenderView& view, const fslam::core::RenderSettings& settings, int repeats,
-                    fslam::core::RenderResult* result) {
+// Median seconds of `repeats` forward passes of `rasterizer` (forward + backward with `backward`);
+// the last result in *result.
+double time_passes(const fslam::core::Rasterizer& rasterizer, const fslam::core::GaussianMap& map,
+                   const fslam::core::RenderView& view, const fslam::core::RenderSettings& settings, int repeats,
+                   bool backward, fslam::core::RenderResult* result) {
   std::vector<double> t;
   std::string why;
+  const int W = view.camera.width, H = view.camera.height;
+  fslam::core::RenderGradients grads;
+  grads.colour = fslam::core::PlanarImage(W, H, 3, 1e-3f);
+  grads.depth = fslam::core::PlanarImage(W, H, 1, 1e-3f);
+  grads.median_depth = grads.depth;
+  if (settings.features) grads.features = fslam::core::PlanarImage(W, H, map.feature_dim, 1e-3f);
   for (int r = 0; r < repeats; ++r) {
     const auto t0 = Clock::now();
-    if (!rasterizer.forward(map, view, settings, result, &why)) {
+    fslam::core::GaussianGradients g;
+    if (!rasterizer.forward(map, view, settings, result, &why) ||
+        (backward && !rasterizer.backward(map, view, settings, *result, grads, &g, &why))) {
       std::fprintf(stderr, "error: %s\n", why.c_str());
       std::exit(1);
     }
@@ -85,20 +94,22 @@ int main(int argc, char** argv) {
   settings.features = map.feature_dim > 0;
   std::printf("map %zu Gaussians, D = %d, SH degree %d; CPU on %d thread(s); %d views x %d repeats (median)\n",
               map.size(), map.feature_dim, map.sh_degree, threads, views, repeats);
-  std::printf("%-9s %10s %9s %9s %8s %13s %13s %11s %11s\n", "size", "splats/px", "cpu ms", "cuda ms", "ratio",
-              "cpu Mstep/s", "cuda Mstep/s", "max dRGB", "max dD (m)");
+  std::printf("%-9s %10s %9s %9s %8s %13s %13s %11s %11s %11s %11s\n", "size", "splats/px", "cpu ms", "cuda ms",
+              "ratio", "cpu Mstep/s", "cuda Mstep/s", "max dRGB", "max dD (m)", "cpu f+b ms", "cuda f+b ms");
   for (double scale : {0.5, 1.0}) {
     const fslam::core::PinholeCamera camera = full.scaled(scale);
-    double cpu_total = 0, gpu_total = 0, steps = 0, pixels = 0, d_rgb = 0, d_depth = 0;
+    double cpu_total = 0, gpu_total = 0, steps = 0, pixels = 0, d_rgb = 0, d_depth = 0, cpu_fb = 0, gpu_fb = 0;
     for (int v = 0; v < views; ++v) {
       fslam::core::RenderView view;
       view.camera = camera;
       const std::size_t k = trajectory.size() * static_cast<std::size_t>(v) / views;
       view.T_camera_world = trajectory[k].T_world_camera.inverse();
       fslam::core::RenderResult a, b;
-      cpu_total += time_forward(*cpu, map, view, settings, repeats, &a);
-      time_forward(*gpu, map, view, settings, 1, &b);  // warm-up: allocations, module load
-      gpu_total += time_forward(*gpu, map, view, settings, repeats, &b);
+      cpu_total += time_passes(*cpu, map, view, settings, repeats, false, &a);
+      time_passes(*gpu, map, view, settings, 1, true, &b);  // warm-up: allocations, module load
+      gpu_total += time_passes(*gpu, map, view, settings, repeats, false, &b);
+      cpu_fb += time_passes(*cpu, map, view, settings, repeats, true, &a);
+      gpu_fb += time_passes(*gpu, map, view, settings, repeats, true, &b);
       steps += static_cast<double>(a.stats.blend_steps);
       pixels += static_cast<double>(a.stats.pixels);
       d_rgb = std::max(d_rgb, max_difference(a.colour, b.colour));
@@ -106,9 +117,10 @@ int main(int argc, char** argv) {
     }
     char size[32];
     std::snprintf(size, sizeof(size), "%dx%d", camera.width, camera.height);
-    std::printf("%-9s %10.1f %9.2f %9.2f %7.1fx %13.1f %13.1f %11.2e %11.2e\n", size, steps / pixels,
-                1e3 * cpu_total / views, 1e3 * gpu_total / views, cpu_total / gpu_total, steps / cpu_total / 1e6,
-                steps / gpu_total / 1e6, d_rgb, d_depth);
+    std::printf("%-9s %10.1f %9.2f %9.2f %7.1fx %13.1f %13.1f %11.2e %11.2e %11.2f %11.2f\n", size,
+                steps / pixels, 1e3 * cpu_total / views, 1e3 * gpu_total / views, cpu_total / gpu_total,
+                steps / cpu_total / 1e6, steps / gpu_total / 1e6, d_rgb, d_depth, 1e3 * cpu_fb / views,
+                1e3 * gpu_fb / views);
   }
   std::printf("cuda ms: the whole forward() call, the upload of the map and the download of the images included\n");
   return 0;

@@ -22,10 +22,10 @@ std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, st
 // fslam render, segment-eval); kMapping needs backward() too (the mapper).
 enum class RasterUse { kRender, kMapping };
 
-// The rasteriser for `choice` (auto, cpu, cuda) and `use`. The CUDA rasteriser renders only:
-// for kRender "auto" takes it when a GPU is usable (else the CPU one, with a notice) and "cuda"
-// requires it; for kMapping "auto" takes the CPU one with a notice and "cuda" is a configuration
-// error that says why.
+// The rasteriser for `choice` (auto, cpu, cuda) and `use`. "cuda" requires a usable GPU (else a
+// configuration error that says why). "auto" takes the GPU for kRender when one is usable (else
+// the CPU, with a notice), and the CPU for kMapping: the CUDA backward pass is checked against the
+// CPU's, but the mapper on it has not run end to end on a GPU yet, so mapping on it is opt-in.
 std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, RasterUse use, std::string* notice,
                                                   std::string* why);
 
