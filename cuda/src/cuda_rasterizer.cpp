@@ -18,7 +18,6 @@ namespace {
 namespace math = core::math;
 namespace render_impl = core::render_impl;
 static_assert(kRasterTile == render_impl::kTileSize, "CPU and CUDA tiles must match");
-static_assert(kGrad2dFixed == render_impl::kGrad2dFixed, "CPU and CUDA 2D gradients must match");
 
 template <typename T>
 cudaError_t upload(DeviceBuffer<T>* buffer, const std::vector<T>& host, cudaStream_t stream) {
@@ -204,7 +203,7 @@ class CudaRasterizer final : public core::Rasterizer {
     if (n == 0) return cudaSuccess;
     // The output gradients on the device (empty images are zero gradients).
     DeviceBuffer<float> g_colour, g_depth, g_median, g_alpha, g_features;
-    RasterGradsView view;
+    math::RasterOutputGrads<float> view;
     cudaError_t status = cudaSuccess;
     const auto put = [&](DeviceBuffer<float>* buffer, const core::PlanarImage& image, const float** pointer) {
       if (status != cudaSuccess || image.empty()) return;
@@ -216,7 +215,7 @@ class CudaRasterizer final : public core::Rasterizer {
     put(&g_median, output_grads.median_depth, &view.median_depth);
     put(&g_alpha, output_grads.alpha, &view.alpha);
     if (D > 0) put(&g_features, output_grads.features, &view.features);
-    const int stride = kGrad2dFixed + D;
+    const int stride = math::kGrad2dFixed + D;
     const int K = (map.sh_degree + 1) * (map.sh_degree + 1);
     const int P = 11 + 3 * K + D + 2;
     DeviceBuffer<float> accum, per_gaussian;

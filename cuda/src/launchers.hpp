@@ -21,17 +21,6 @@ cudaError_t unproject_depth_fwd(const core::math::Intrinsics& k, const float* de
 // ---------------------------------------------------------------- rasteriser (forward)
 constexpr int kRasterTile = 16;           // pixels per tile side, as the CPU rasteriser's kTileSize
 constexpr int kMaxFeatureChannels = 64;   // D the compositing kernels hold per pixel
-constexpr int kGrad2dFixed = 14;          // per Gaussian 2D gradient: u, v, conic 3, opacity, depth,
-                                          // plane 2, colour 3, importance rgb and feature; then D
-
-// Device gradients of the outputs (null = zero); shapes as core::math::RasterOutputs.
-struct RasterGradsView {
-  const float* colour = nullptr;
-  const float* depth = nullptr;
-  const float* median_depth = nullptr;
-  const float* alpha = nullptr;
-  const float* features = nullptr;
-};
 
 // Projects every Gaussian of `scene` (device pointers; radius 0 = culled): its tile rectangle
 // ([N, 4]), the number of tiles it touches and whether it is visible (1) at all.
@@ -64,13 +53,13 @@ cudaError_t composite_fwd(const core::math::ProjectedGaussian<float>* projected,
                           const core::math::RasterOutputs<float>& out, std::int32_t* pixel_end,
                           std::int32_t* pixel_median, unsigned long long* counters, cudaStream_t stream);
 
-// Backward of the compositing: adds each Gaussian's 2D gradient into accum [N, kGrad2dFixed + D]
+// Backward of the compositing: adds each Gaussian's 2D gradient into accum [N, math::kGrad2dFixed + D]
 // (zeroed by the caller), from the forward's outputs, per-pixel ends and medians.
 cudaError_t composite_bwd(const core::math::ProjectedGaussian<float>* projected, const uint2* tile_ranges,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
                           const core::math::RasterOutputs<float>& out, const std::int32_t* pixel_end,
-                          const std::int32_t* pixel_median, const RasterGradsView& grads, float* accum,
+                          const std::int32_t* pixel_median, const core::math::RasterOutputGrads<float>& grads, float* accum,
                           cudaStream_t stream);
 
 // Backward of the projection: out [N, 11 + 3K + D + 2] per Gaussian (mean, rotation, log-scale,

@@ -65,6 +65,15 @@ __global__ void ranges_kernel(std::uint32_t entries, const unsigned long long* _
   if (j + 1 == entries || static_cast<unsigned>(keys[j + 1] >> 32) != tile) ranges[tile].y = j + 1;
 }
 
+// Whether pixel (px, py) is a pair the CPU rasteriser evaluates: in the splat's row range and
+// row span (its loops run over exactly those), so both passes see the same pairs.
+__device__ bool in_footprint(const math::ProjectedGaussian<float>& g, int px, int py) {
+  int y0, y1, x0, x1;
+  math::splat_row_range(g, &y0, &y1);
+  if (py < y0 || py >= y1) return false;
+  return math::splat_row_span(g, static_cast<float>(py), &x0, &x1) && px >= x0 && px < x1;
+}
+
 // Each pixel composites its tile's list front to back exactly as the CPU's per-splat loop does
 // per pixel: the row range and span decide which pairs are evaluated, splat_alpha the weight,
 // kTransmittanceMin ends the pixel, the first transmittance below 0.5 gives the median depth.
@@ -103,10 +112,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
     const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), end - first));
     for (int k = 0; k < n && !done; ++k) {
       const math::ProjectedGaussian<float>& g = batch[k];
-      int y0, y1, x0, x1;
-      math::splat_row_range(g, &y0, &y1);
-      if (py < y0 || py >= y1) continue;
-      if (!math::splat_row_span(g, static_cast<float>(py), &x0, &x1) || px < x0 || px >= x1) continue;
+      if (!in_footprint(g, px, py)) continue;
       ++evaluated;
       float gauss;
       const float alpha = math::splat_alpha(g, static_cast<float>(px), static_cast<float>(py), &gauss);
@@ -159,7 +165,7 @@ __global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __res
                                      const float* __restrict__ features, int feature_dim, int width, int height,
                                      int tiles_x, float3 background, math::RasterOutputs<float> out,
                                      const std::int32_t* __restrict__ pixel_end,
-                                     const std::int32_t* __restrict__ pixel_median, RasterGradsView grads,
+                                     const std::int32_t* __restrict__ pixel_median, math::RasterOutputGrads<float> grads,
                                      float* __restrict__ accum) {
   constexpr int kBatch = kTile * kTile;
   __shared__ math::ProjectedGaussian<float> batch[kBatch];
@@ -196,7 +202,7 @@ __global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __res
     last = pixel_end[pix];
     median = grads.median_depth != nullptr ? pixel_median[pix] : -1;
   }
-  const int stride = kGrad2dFixed + D;
+  const int stride = math::kGrad2dFixed + D;
   for (std::uint32_t first = begin; first < end; first += kBatch) {
     const int offset = static_cast<int>(first - begin);
     if (__syncthreads_count(offset < last ? 1 : 0) == 0) break;  // every pixel is past its end
@@ -209,10 +215,7 @@ __global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __res
     const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), end - first));
     for (int k = 0; k < n && offset + k < last; ++k) {
       const math::ProjectedGaussian<float>& g = batch[k];
-      int y0, y1, x0, x1;
-      math::splat_row_range(g, &y0, &y1);
-      if (py < y0 || py >= y1) continue;
-      if (!math::splat_row_span(g, static_cast<float>(py), &x0, &x1) || px < x0 || px >= x1) continue;
+      if (!in_footprint(g, px, py)) continue;
       float gauss;
       const float alpha = math::splat_alpha(g, static_cast<float>(px), static_cast<float>(py), &gauss);
       if (alpha == 0.0f) continue;
@@ -226,12 +229,11 @@ __global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __res
                                 tot, gp, g_background, g_alpha_out, g_median, &trans, pre, &pg, fg, &imp_rgb,
                                 &imp_feat);
       float* a = accum + static_cast<long>(id) * stride;
-      const float values[kGrad2dFixed] = {pg.u,        pg.v,        pg.conic[0], pg.conic[1], pg.conic[2],
-                                          pg.opacity,  pg.depth,    pg.plane[0], pg.plane[1], pg.colour[0],
-                                          pg.colour[1], pg.colour[2], imp_rgb,    imp_feat};
-      for (int c = 0; c < kGrad2dFixed; ++c) atomicAdd(&a[c], values[c]);
+      float values[math::kGrad2dFixed];
+      math::pack_gradient_2d(pg, imp_rgb, imp_feat, values);
+      for (int c = 0; c < math::kGrad2dFixed; ++c) atomicAdd(&a[c], values[c]);
       if (feature_grads)
-        for (int c = 0; c < D; ++c) atomicAdd(&a[kGrad2dFixed + c], fg[c]);
+        for (int c = 0; c < D; ++c) atomicAdd(&a[math::kGrad2dFixed + c], fg[c]);
     }
   }
 }
@@ -245,24 +247,12 @@ __global__ void project_bwd_kernel(math::SplatScene<float> scene, math::SplatCam
   const std::size_t i = static_cast<std::size_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= scene.count) return;
   const int K = (scene.sh_degree + 1) * (scene.sh_degree + 1);
-  const int P = 11 + 3 * K + D + 2, stride = kGrad2dFixed + D;
+  const int P = 11 + 3 * K + D + 2, stride = math::kGrad2dFixed + D;
   float* o = out + i * P;
   for (int k = 0; k < P; ++k) o[k] = 0.0f;
   if (projected[i].radius == 0) return;
   const float* a = accum + i * stride;
-  math::ProjectedGradient<float> pg;
-  pg.u = a[0];
-  pg.v = a[1];
-  pg.conic[0] = a[2];
-  pg.conic[1] = a[3];
-  pg.conic[2] = a[4];
-  pg.opacity = a[5];
-  pg.depth = a[6];
-  pg.plane[0] = a[7];
-  pg.plane[1] = a[8];
-  pg.colour[0] = a[9];
-  pg.colour[1] = a[10];
-  pg.colour[2] = a[11];
+  const math::ProjectedGradient<float> pg = math::unpack_gradient_2d(a);
   math::ProjectedGaussian<float> again;
   math::ProjectionTerms<float> terms;
   math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
@@ -276,7 +266,7 @@ __global__ void project_bwd_kernel(math::SplatScene<float> scene, math::SplatCam
   for (int k = 0; k < 3; ++k) o[7 + k] = pgrad.log_scale[k];
   o[10] = pgrad.opacity_logit;
   for (int k = 0; k < 3 * K; ++k) o[11 + k] = pgrad.sh[k];
-  for (int c = 0; c < D; ++c) o[11 + 3 * K + c] = a[kGrad2dFixed + c];
+  for (int c = 0; c < D; ++c) o[11 + 3 * K + c] = a[math::kGrad2dFixed + c];
   o[11 + 3 * K + D] = a[12];
   o[12 + 3 * K + D] = a[13];
 }
@@ -374,7 +364,7 @@ cudaError_t composite_bwd(const core::math::ProjectedGaussian<float>* projected,
                           const std::uint32_t* tile_ids, const float* features, int feature_dim, int width,
                           int height, int tiles_x, int tiles_y, const float background[3],
                           const core::math::RasterOutputs<float>& out, const std::int32_t* pixel_end,
-                          const std::int32_t* pixel_median, const RasterGradsView& grads, float* accum,
+                          const std::int32_t* pixel_median, const core::math::RasterOutputGrads<float>& grads, float* accum,
                           cudaStream_t stream) {
   if (feature_dim < 0 || feature_dim > kMaxFeatureChannels) return cudaErrorInvalidValue;
   const int tiles = tiles_x * tiles_y;

@@ -82,6 +82,41 @@ struct ProjectedGradient {
   T colour[3];
 };
 
+// Gradients of the loss w.r.t. the rasteriser's outputs (shapes as RasterOutputs); null = zero.
+template <typename T>
+struct RasterOutputGrads {
+  const T* colour = nullptr;
+  const T* depth = nullptr;
+  const T* median_depth = nullptr;
+  const T* alpha = nullptr;
+  const T* features = nullptr;
+};
+
+// A Gaussian's summed 2D gradient as both backward passes store it: u, v, conic[3], opacity,
+// depth, plane[2], colour[3], importance rgb, importance feature (then the D feature gradients).
+constexpr int kGrad2dFixed = 14;
+
+template <typename T>
+FSLAM_HD void pack_gradient_2d(const ProjectedGradient<T>& g, T imp_rgb, T imp_feat, T out[kGrad2dFixed]) {
+  const T values[kGrad2dFixed] = {g.u,        g.v,     g.conic[0], g.conic[1], g.conic[2], g.opacity, g.depth,
+                                  g.plane[0], g.plane[1], g.colour[0], g.colour[1], g.colour[2], imp_rgb, imp_feat};
+  for (int k = 0; k < kGrad2dFixed; ++k) out[k] = values[k];
+}
+
+template <typename T>
+FSLAM_HD ProjectedGradient<T> unpack_gradient_2d(const T* in) {
+  ProjectedGradient<T> g;
+  g.u = in[0];
+  g.v = in[1];
+  for (int k = 0; k < 3; ++k) g.conic[k] = in[2 + k];
+  g.opacity = in[5];
+  g.depth = in[6];
+  g.plane[0] = in[7];
+  g.plane[1] = in[8];
+  for (int k = 0; k < 3; ++k) g.colour[k] = in[9 + k];
+  return g;
+}
+
 // ---------------------------------------------------------------- small linear algebra
 template <typename T>
 FSLAM_HD void mat_mul(const T A[9], const T B[9], T C[9]) {

@@ -22,18 +22,11 @@ namespace fslam::core::render_impl {
 
 constexpr int kTileSize = 16;                  // pixels per tile side
 
+using math::kGrad2dFixed;
+using math::RasterOutputGrads;
 using math::RasterOutputs;
 using math::SplatScene;
 
-// Gradients of the loss w.r.t. the outputs; null = zero.
-template <typename T>
-struct RasterOutputGrads {
-  const T* colour = nullptr;
-  const T* depth = nullptr;
-  const T* median_depth = nullptr;
-  const T* alpha = nullptr;
-  const T* features = nullptr;
-};
 
 // Gradients w.r.t. the scene's parameters (same shapes), accumulated (+=) by the backward pass.
 template <typename T>
@@ -290,9 +283,8 @@ void rasterize_forward(const SplatScene<T>& scene, const math::SplatCamera<T>& c
   for (std::uint64_t s : blended) st.blend_steps += s;
 }
 
-// Per-Gaussian 2D gradients as one thread accumulates them: [N, stride] with
-// u, v, conic[3], opacity, depth, plane[2], colour[3], importance rgb, feature, then D features.
-constexpr int kGrad2dFixed = 14;
+// Per-Gaussian 2D gradients as one thread accumulates them: [N, kGrad2dFixed + D]
+// (math::pack_gradient_2d, then D features).
 
 // Backward pass. Each tile is processed splat by splat (outer loop) over its pixels (inner loop),
 // rolling each pixel's transmittance and prefix sums forward: the state at the start of every
@@ -396,20 +388,9 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
         }
         if (!touched) continue;
         T* a = acc.data() + static_cast<std::size_t>(id) * stride;
-        a[0] += pg.u;
-        a[1] += pg.v;
-        a[2] += pg.conic[0];
-        a[3] += pg.conic[1];
-        a[4] += pg.conic[2];
-        a[5] += pg.opacity;
-        a[6] += pg.depth;
-        a[7] += pg.plane[0];
-        a[8] += pg.plane[1];
-        a[9] += pg.colour[0];
-        a[10] += pg.colour[1];
-        a[11] += pg.colour[2];
-        a[12] += imp_rgb;
-        a[13] += imp_feat;
+        T packed[kGrad2dFixed];
+        math::pack_gradient_2d(pg, imp_rgb, imp_feat, packed);
+        for (int k = 0; k < kGrad2dFixed; ++k) a[k] += packed[k];
         for (int c = 0; c < D; ++c) a[kGrad2dFixed + c] += feature_grad[c];
       }
     }
@@ -427,19 +408,7 @@ void rasterize_backward(const SplatScene<T>& scene, const math::SplatCamera<T>& 
       std::fill(sum.begin(), sum.end(), T(0));
       for (const std::vector<T>* part : parts)
         for (int k = 0; k < stride; ++k) sum[k] += (*part)[i * stride + k];
-      math::ProjectedGradient<T> pg;
-      pg.u = sum[0];
-      pg.v = sum[1];
-      pg.conic[0] = sum[2];
-      pg.conic[1] = sum[3];
-      pg.conic[2] = sum[4];
-      pg.opacity = sum[5];
-      pg.depth = sum[6];
-      pg.plane[0] = sum[7];
-      pg.plane[1] = sum[8];
-      pg.colour[0] = sum[9];
-      pg.colour[1] = sum[10];
-      pg.colour[2] = sum[11];
+      const math::ProjectedGradient<T> pg = math::unpack_gradient_2d(sum.data());
       math::ProjectedGaussian<T> projected;
       math::ProjectionTerms<T> terms;
       math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
