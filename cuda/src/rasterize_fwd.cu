@@ -74,6 +74,41 @@ __device__ bool in_footprint(const math::ProjectedGaussian<float>& g, int px, in
   return math::splat_row_span(g, static_cast<float>(py), &x0, &x1) && px >= x0 && px < x1;
 }
 
+// A compositing thread's pixel: one block per tile, one thread per pixel, and the tile's list.
+struct TilePixel {
+  int px, py, rank;
+  bool inside;                // the pixel lies in the image (edge tiles overhang it)
+  std::uint32_t begin, end;   // the tile's depth-sorted list in the sorted ids
+};
+
+template <int kTile>
+__device__ TilePixel tile_pixel(const uint2* __restrict__ tile_ranges, int tiles_x, int width, int height) {
+  TilePixel t;
+  const int tile = blockIdx.x;
+  t.px = (tile % tiles_x) * kTile + static_cast<int>(threadIdx.x);
+  t.py = (tile / tiles_x) * kTile + static_cast<int>(threadIdx.y);
+  t.rank = static_cast<int>(threadIdx.y) * kTile + static_cast<int>(threadIdx.x);
+  t.inside = t.px < width && t.py < height;
+  t.begin = tile_ranges[tile].x;
+  t.end = tile_ranges[tile].y;
+  return t;
+}
+
+// Loads the list entries [first, first + kBatch) into shared memory, one per thread, then waits
+// for the block; returns how many were loaded.
+template <int kBatch>
+__device__ int load_batch(const TilePixel& t, std::uint32_t first, const std::uint32_t* __restrict__ tile_ids,
+                          const math::ProjectedGaussian<float>* __restrict__ projected,
+                          math::ProjectedGaussian<float>* batch, std::uint32_t* batch_ids) {
+  const std::uint32_t mine = first + static_cast<std::uint32_t>(t.rank);
+  if (mine < t.end) {
+    batch_ids[t.rank] = tile_ids[mine];
+    batch[t.rank] = projected[batch_ids[t.rank]];
+  }
+  __syncthreads();
+  return static_cast<int>(min(static_cast<std::uint32_t>(kBatch), t.end - first));
+}
+
 // Each pixel composites its tile's list front to back exactly as the CPU's per-splat loop does
 // per pixel: the row range and span decide which pairs are evaluated, splat_alpha the weight,
 // kTransmittanceMin ends the pixel, the first transmittance below 0.5 gives the median depth.
@@ -87,13 +122,11 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
   constexpr int kBatch = kTile * kTile;
   __shared__ math::ProjectedGaussian<float> batch[kBatch];
   __shared__ std::uint32_t batch_ids[kBatch];
-  const int tile = blockIdx.x;
-  const int px = (tile % tiles_x) * kTile + static_cast<int>(threadIdx.x);
-  const int py = (tile / tiles_x) * kTile + static_cast<int>(threadIdx.y);
-  const int rank = static_cast<int>(threadIdx.y) * kTile + static_cast<int>(threadIdx.x);
-  const bool inside = px < width && py < height;
+  const TilePixel t = tile_pixel<kTile>(tile_ranges, tiles_x, width, height);
+  const int px = t.px, py = t.py;
+  const bool inside = t.inside;
+  const std::uint32_t begin = t.begin, end = t.end;
   bool done = !inside;
-  const std::uint32_t begin = tile_ranges[tile].x, end = tile_ranges[tile].y;
   float trans = 1.0f, acc[4 + kMaxFeatureChannels];
   const int channels = 4 + feature_dim;
   for (int c = 0; c < channels; ++c) acc[c] = 0.0f;
@@ -103,13 +136,7 @@ __global__ void composite_kernel(const math::ProjectedGaussian<float>* __restric
   unsigned long long evaluated = 0, blended = 0;
   for (std::uint32_t first = begin; first < end; first += kBatch) {
     if (__syncthreads_count(done ? 1 : 0) == kBatch) break;  // every pixel of the tile has ended
-    const std::uint32_t mine = first + static_cast<std::uint32_t>(rank);
-    if (mine < end) {
-      batch_ids[rank] = tile_ids[mine];
-      batch[rank] = projected[batch_ids[rank]];
-    }
-    __syncthreads();
-    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), end - first));
+    const int n = load_batch<kBatch>(t, first, tile_ids, projected, batch, batch_ids);
     for (int k = 0; k < n && !done; ++k) {
       const math::ProjectedGaussian<float>& g = batch[k];
       if (!in_footprint(g, px, py)) continue;
@@ -170,12 +197,10 @@ __global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __res
   constexpr int kBatch = kTile * kTile;
   __shared__ math::ProjectedGaussian<float> batch[kBatch];
   __shared__ std::uint32_t batch_ids[kBatch];
-  const int tile = blockIdx.x;
-  const int px = (tile % tiles_x) * kTile + static_cast<int>(threadIdx.x);
-  const int py = (tile / tiles_x) * kTile + static_cast<int>(threadIdx.y);
-  const int rank = static_cast<int>(threadIdx.y) * kTile + static_cast<int>(threadIdx.x);
-  const bool inside = px < width && py < height;
-  const std::uint32_t begin = tile_ranges[tile].x, end = tile_ranges[tile].y;
+  const TilePixel t = tile_pixel<kTile>(tile_ranges, tiles_x, width, height);
+  const int px = t.px, py = t.py;
+  const bool inside = t.inside;
+  const std::uint32_t begin = t.begin, end = t.end;
   const int D = feature_dim;
   const bool feature_grads = grads.features != nullptr && D > 0;
   const long plane = static_cast<long>(width) * height, pix = static_cast<long>(py) * width + px;
@@ -206,13 +231,7 @@ __global__ void composite_bwd_kernel(const math::ProjectedGaussian<float>* __res
   for (std::uint32_t first = begin; first < end; first += kBatch) {
     const int offset = static_cast<int>(first - begin);
     if (__syncthreads_count(offset < last ? 1 : 0) == 0) break;  // every pixel is past its end
-    const std::uint32_t mine = first + static_cast<std::uint32_t>(rank);
-    if (mine < end) {
-      batch_ids[rank] = tile_ids[mine];
-      batch[rank] = projected[batch_ids[rank]];
-    }
-    __syncthreads();
-    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), end - first));
+    const int n = load_batch<kBatch>(t, first, tile_ids, projected, batch, batch_ids);
     for (int k = 0; k < n && offset + k < last; ++k) {
       const math::ProjectedGaussian<float>& g = batch[k];
       if (!in_footprint(g, px, py)) continue;
