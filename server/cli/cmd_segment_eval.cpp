@@ -51,15 +51,6 @@ cv::Vec3b id_colour(int id) {
           static_cast<uchar>(64 + ((h >> 16) & 0x7f))};
 }
 
-// The pixel of `object` farthest from its outline: where a user would click.
-bool click_point(const cv::Mat& object, cv::Point* at) {
-  cv::Mat distance;
-  cv::distanceTransform(object, distance, cv::DIST_L2, 3);
-  double best = 0;
-  cv::minMaxLoc(distance, nullptr, &best, nullptr, at);
-  return best >= 2.0;
-}
-
 int run_segment_eval(const SegmentEvalArgs& args) {
   std::string why;
   core::DatasetOptions options;
@@ -116,11 +107,13 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       for (const auto& [id, n] : area)
         if (id != 0 && n >= args.min_object_share * truth.total()) present.push_back(id);
     }
-    cv::Mat overlay_masks;
+    const bool write_overlays = !args.out.empty() && static_cast<int>(views) < args.overlays;
+    cv::Mat click_paint = cv::Mat::zeros(truth.size(), CV_8UC3);  // each click's mask in its object's colour
+    std::vector<cv::Point> clicks;
     for (int id : present) {
       const cv::Mat object = truth == id;
       cv::Point at;
-      if (!click_point(object, &at)) continue;
+      if (!core::click_point(object, 2.0, &at)) continue;
       std::vector<std::uint8_t> selected;
       cv::Mat mask;
       std::string click_why;
@@ -132,6 +125,10 @@ int run_segment_eval(const SegmentEvalArgs& args) {
         continue;
       }
       click_iou.push_back(std::max(0.0, core::mask_iou(mask, truth, id)));
+      if (write_overlays) {
+        click_paint.setTo(id_colour(id + 1000), mask);
+        clicks.push_back(at);
+      }
       // Precision and recall of the mask tell over-growth from under-growth.
       const double in_mask = cv::countNonZero(mask), in_object = cv::countNonZero(object);
       const double both = cv::countNonZero(mask & object);
@@ -151,7 +148,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
                            {"spill_id", most.first},
                            {"spill_share", in_mask > 0 ? most.second / in_mask : 0.0}});
     }
-    if (!args.out.empty() && static_cast<int>(views) < args.overlays) {
+    if (write_overlays) {
       core::RenderResult r;
       core::RenderSettings settings;
       settings.features = false;
@@ -167,6 +164,16 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       cv::hconcat(std::vector<cv::Mat>{colour, blended, truth_coded}, panel);
       char name[64];
       std::snprintf(name, sizeof name, "promptless_%06zu.png", i);
+      if (!core::write_image((fs::path(args.out) / name).string(), panel, &why)) return fail(why);
+      // One-click masks over the colour (each in its object's ground-truth colour; the click is
+      // the ringed dot), beside the ground truth.
+      cv::addWeighted(colour, 0.5, click_paint, 0.5, 0.0, blended);
+      for (const cv::Point& at : clicks) {
+        cv::circle(blended, at, 5, cv::Scalar(0, 0, 0), 2);
+        cv::circle(blended, at, 3, cv::Scalar(255, 255, 255), cv::FILLED);
+      }
+      cv::hconcat(std::vector<cv::Mat>{blended, truth_coded}, panel);
+      std::snprintf(name, sizeof name, "clicks_%06zu.png", i);
       if (!core::write_image((fs::path(args.out) / name).string(), panel, &why)) return fail(why);
     }
     ++views;
@@ -211,7 +218,7 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
       ->required();
   app->add_option("--every", args->every, "Evaluate every N-th frame ...")->capture_default_str();
   app->add_option("--offset", args->offset, "... starting at this position")->capture_default_str();
-  app->add_option("--out", args->out, "Folder for segmentation.json and overlays");
+  app->add_option("--out", args->out, "Folder for segmentation.json and overlays of the first views (promptless_*.png, clicks_*.png)");
   app->add_option("--threads", args->threads, "Rendering threads")->capture_default_str();
   app->add_option("--feature-threshold", args->promptless.graph.feature_threshold,
                   "Promptless: RMS latent difference joining neighbours")

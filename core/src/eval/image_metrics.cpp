@@ -404,4 +404,16 @@ double mask_iou(const cv::Mat& mask, const cv::Mat& gt_ids, int id) {
   return uni == 0 ? -1.0 : static_cast<double>(inter) / static_cast<double>(uni);
 }
 
+bool click_point(const cv::Mat& mask, double min_distance, cv::Point* at) {
+  cv::Mat padded, distance;
+  cv::copyMakeBorder(mask != 0, padded, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+  cv::distanceTransform(padded, distance, cv::DIST_L2, 3);
+  double best = 0.0;
+  cv::Point where;
+  cv::minMaxLoc(distance, nullptr, &best, nullptr, &where);
+  if (best < min_distance) return false;
+  *at = where - cv::Point(1, 1);
+  return true;
+}
+
 }  // namespace fslam::core

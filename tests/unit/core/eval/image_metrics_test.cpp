@@ -312,5 +312,31 @@ TEST(ImageMetrics, InstanceMatchingByHand) {
   EXPECT_NEAR(r3.miou, (2.0 / 3.0) / 2.0, 1e-12);
 }
 
+// The simulated click: the pixel farthest from the outline, with the image border an outline.
+TEST(ImageMetrics, ClickPointStaysOffTheImageBorder) {
+  // A wall the view cuts at the top: rows 0-39 of a 100 x 60 view, full width. Without the
+  // border as outline the farthest pixel from its (bottom) edge would be on row 0.
+  cv::Mat wall = cv::Mat::zeros(60, 100, CV_8UC1);
+  wall.rowRange(0, 40).setTo(255);
+  cv::Point at;
+  ASSERT_TRUE(click_point(wall, 2.0, &at));
+  EXPECT_NEAR(at.y, 19.5, 1.5) << "halfway between the border and the outline";
+  EXPECT_GE(at.x, 19);  // at least as far from the left and right borders
+  EXPECT_LE(at.x, 80);
+  EXPECT_EQ(wall.at<std::uint8_t>(at), 255);
+
+  // A 21 x 21 square well inside: its centre.
+  cv::Mat square = cv::Mat::zeros(60, 100, CV_8UC1);
+  square(cv::Rect(60, 10, 21, 21)).setTo(1);
+  ASSERT_TRUE(click_point(square, 2.0, &at));
+  EXPECT_EQ(at, cv::Point(70, 20));
+
+  // A sliver one pixel wide is never at least 2 px in; an empty mask has no click.
+  cv::Mat sliver = cv::Mat::zeros(60, 100, CV_8UC1);
+  sliver.col(50).setTo(255);
+  EXPECT_FALSE(click_point(sliver, 2.0, &at));
+  EXPECT_FALSE(click_point(cv::Mat::zeros(60, 100, CV_8UC1), 2.0, &at));
+}
+
 }  // namespace
 }  // namespace fslam::core

@@ -133,6 +133,12 @@ InstanceMatchResult match_instances(const InstanceOverlap& overlap);
 // IoU of a binary mask (non-zero = in) with gt_ids == id: -1 when both are empty.
 double mask_iou(const cv::Mat& mask, const cv::Mat& gt_ids, int id);
 
+// The simulated one-click prompt on a binary mask (CV_8UC1, non-zero = object): the pixel
+// farthest from the object's outline, where the image border counts as outline (the mask is
+// padded with background, as interactive-segmentation protocols do), so a click never lands on
+// the edge where the view cuts the object. False when no pixel is at least `min_distance` px in.
+bool click_point(const cv::Mat& mask, double min_distance, cv::Point* at);
+
 // Minimum-cost assignment (Hungarian / Kuhn-Munkres, O(n^2 m)) on a rows x cols cost matrix
 // (row-major, finite). Returns, for each row, its column, or -1 for rows left over when there
 // are more rows than columns; every row is assigned when rows <= cols.
