@@ -257,6 +257,9 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
   app->add_option("--prompt-fill-fraction", args->prompt.fill_fraction,
                   "Prompts: share of a Gaussian's neighbours inside the object that makes it join")
       ->capture_default_str();
+  app->add_option("--prompt-min-jump-region", args->prompt.min_jump_region,
+                  "Prompts: a jump counts only from a region of at least this many Gaussians")
+      ->capture_default_str();
   app->add_option("--min-instance", args->promptless.min_instance_gaussians,
                   "Promptless: smaller regions merge into a neighbour")
       ->capture_default_str();

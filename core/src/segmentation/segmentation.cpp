@@ -271,29 +271,6 @@ std::vector<float> prompt_thresholds(const PromptConfig& config) {
   return out;
 }
 
-// Paper sec. "Novel-View Open-Set Segmentation": a prompt selects the object in 3D; the
-// threshold that bounds it is chosen per prompt, docs/segmentation.md says how.
-// Index of the threshold to keep given the region's Gaussian count at each (counts[k]) and the
-// Gaussians the step from k to k + 1 adds off the region's surface (leaked[k]): the one before
-// the largest relative jump (counts[k] + leaked[k]) / counts[k] of at least min_jump (the region
-// crossed into a neighbouring surface there), else the loosest. +1 keeps an empty region from
-// making every jump infinite. leaked[k] = counts[k + 1] - counts[k] judges every added Gaussian.
-std::size_t pick_threshold(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
-                           float min_jump) {
-  std::size_t pick = counts.size() - 1;
-  double best = 0.0;
-  for (std::size_t k = 0; k + 1 < counts.size(); ++k) {
-    if (counts[k] == 0) continue;
-    const double before = static_cast<double>(counts[k]) + 1.0;
-    const double ratio = (before + static_cast<double>(leaked[k])) / before;
-    if (ratio >= min_jump && ratio > best) {
-      best = ratio;
-      pick = k;
-    }
-  }
-  return pick;
-}
-
 // Whether growth from Gaussian i to its neighbour j stays on one smooth surface: both flat
 // (their normal is defined), normals within the angle, each mean near the other's tangent plane.
 // normals: [N, 3] world frame, zero where the Gaussian is not flat.
@@ -398,7 +375,7 @@ void fill_region(const std::vector<std::vector<int>>& spatial, int rounds, float
 }
 
 // Grows one prompt's region at each of the prompt's thresholds (seeds_for(threshold) gives its
-// seeds) and adds the one pick_threshold keeps, refined by fill_region, to `selected`. False when
+// seeds) and adds the one pick_prompt_threshold keeps, refined by fill_region, to `selected`. False when
 // no threshold has seeds.
 template <typename SeedsFor>
 bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>>& neighbours,
@@ -428,7 +405,8 @@ bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>
       leaked[k] = added_off_surface(smooth, seeds[k + 1], regions[k], regions[k + 1]);
     }
   }
-  std::vector<std::uint8_t>& region = regions[pick_threshold(counts, leaked, config.min_jump)];
+  const std::size_t picked = pick_prompt_threshold(counts, leaked, config.min_jump, config.min_jump_region);
+  std::vector<std::uint8_t>& region = regions[picked];
   fill_region(spatial, config.fill_rounds, config.fill_fraction, &region);
   for (std::size_t i = 0; i < region.size(); ++i)
     if (region[i]) (*selected)[i] = 1;
@@ -436,6 +414,26 @@ bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>
 }
 
 }  // namespace
+
+// Paper sec. "Novel-View Open-Set Segmentation": a prompt selects the object in 3D; the
+// threshold that bounds it is chosen per prompt (docs/segmentation.md). +1 keeps an empty region
+// from making every jump infinite.
+std::size_t pick_prompt_threshold(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
+                                  float min_jump, std::size_t min_region) {
+  if (counts.empty()) return 0;
+  std::size_t pick = counts.size() - 1;
+  double best = 0.0;
+  for (std::size_t k = 0; k + 1 < counts.size() && k < leaked.size(); ++k) {
+    if (counts[k] == 0 || counts[k] < min_region) continue;
+    const double before = static_cast<double>(counts[k]) + 1.0;
+    const double ratio = (before + static_cast<double>(leaked[k])) / before;
+    if (ratio >= min_jump && ratio > best) {
+      best = ratio;
+      pick = k;
+    }
+  }
+  return pick;
+}
 
 bool FeatureGraphConfig::is_valid(std::string* why) const {
   if (knn < 1) return fail(why, "segmentation: knn must be >= 1");

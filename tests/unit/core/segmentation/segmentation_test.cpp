@@ -272,6 +272,30 @@ TEST(Segmentation, TheRefinementIn3DClosesTheHolesSpecksLeaveInAnObject) {
   EXPECT_FALSE(bad.is_valid(&why));
 }
 
+// Counts and off-surface additions per threshold step, as the synthetic room gave them.
+TEST(Segmentation, APromptKeepsTheThresholdBeforeTheLargestJumpOfARealRegion) {
+  // A picture: modest growth, then the wall behind it floods in at the step from 5 to 6.
+  const std::vector<std::size_t> picture{143, 165, 205, 227, 279, 423, 4215, 4402, 4560};
+  const std::vector<std::size_t> picture_leak{11, 33, 18, 49, 141, 3804, 193, 156, 0};
+  EXPECT_EQ(pick_prompt_threshold(picture, picture_leak, 1.75f, 100), 5u);
+  // A wall whose tightest region is 38 Gaussians of its own texture: that step (38 -> 125,
+  // x3.2) is no boundary and no longer counts; the largest jump of a real region (x2.3) does.
+  // (On that click: IoU 0.18 at threshold 0, 0.50 at 1, 0.85 at 7.)
+  const std::vector<std::size_t> wall{38, 125, 277, 339, 528, 913, 1176, 1308, 1381};
+  const std::vector<std::size_t> wall_leak{86, 161, 62, 188, 385, 262, 131, 70, 0};
+  EXPECT_EQ(pick_prompt_threshold(wall, wall_leak, 1.75f, 100), 1u);
+  EXPECT_EQ(pick_prompt_threshold(wall, wall_leak, 1.75f, 0), 0u) << "without the minimum region";
+  // A cabinet: 33 -> 1006 at the first step is the cabinet itself; nothing jumps after it.
+  const std::vector<std::size_t> cabinet{33, 1006, 1039, 1067, 1099, 1120, 1133, 1147, 1164};
+  const std::vector<std::size_t> cabinet_leak{975, 40, 28, 32, 21, 13, 14, 17, 0};
+  EXPECT_EQ(pick_prompt_threshold(cabinet, cabinet_leak, 1.75f, 100), 8u);
+  // A jump smaller than min_jump is growth, not a leak.
+  const std::vector<std::size_t> book{112, 120, 129, 140, 147, 161, 174, 182, 357};
+  const std::vector<std::size_t> book_leak{8, 9, 11, 7, 14, 13, 8, 175, 0};
+  EXPECT_EQ(pick_prompt_threshold(book, book_leak, 1.75f, 100), 7u);
+  EXPECT_EQ(pick_prompt_threshold(book, book_leak, 2.0f, 100), 8u);
+}
+
 TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
   PromptConfig config;
   std::string why;

@@ -32,7 +32,7 @@ struct FeatureGraphConfig {
 struct PromptlessConfig {
   FeatureGraphConfig graph;
   // Regions with fewer Gaussians join the neighbouring instance with the most alike latent.
-  std::size_t min_instance_gaussians = 200;
+  std::size_t min_instance_gaussians = 100;
   bool is_valid(std::string* why = nullptr) const;
 };
 
@@ -78,7 +78,11 @@ struct PromptConfig {
   float min_threshold = 0.6f;
   float max_threshold = 1.0f;
   float threshold_step = 0.05f;
-  float min_jump = 2.0f;  // ratio of Gaussian counts between neighbouring thresholds
+  float min_jump = 1.75f;  // ratio of Gaussian counts between neighbouring thresholds
+  // A region of fewer Gaussians has no jump that counts: at the tightest thresholds a prompt's
+  // region can be a few dozen Gaussians of its own surface's texture, and adding the rest of
+  // that surface multiplies it (on the synthetic room a wall was cut to 0.2 IoU that way).
+  std::size_t min_jump_region = 100;
   // Growth that stays on the prompted smooth surface is no leak: a step's jump counts only the
   // Gaussians it adds that are not reached from the seeds over smooth neighbour pairs (both
   // flat, normals within smooth_max_angle_deg, each mean within smooth_max_offset of the other's
@@ -103,6 +107,14 @@ struct PromptConfig {
   float fill_fraction = 0.5f;
   bool is_valid(std::string* why = nullptr) const;
 };
+
+// The index of the threshold a prompt keeps, given its region's Gaussian count at each threshold
+// (counts[k]) and the Gaussians the step from k to k + 1 adds off the prompted surface
+// (leaked[k]): the one before the largest jump (counts[k] + 1 + leaked[k]) / (counts[k] + 1) of
+// at least min_jump taken from a region of at least min_region Gaussians (there the region
+// crossed into a neighbouring surface), else the loosest.
+std::size_t pick_prompt_threshold(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
+                                  float min_jump, std::size_t min_region);
 
 // A box prompt in pixels of the view: [u0, u1) x [v0, v1).
 struct BoxPrompt {
