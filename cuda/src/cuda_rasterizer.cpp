@@ -44,19 +44,8 @@ struct CudaBackwardState final : core::RenderBackwardState {
   bool has_filter = false;
   int sh_degree = 0;
 
-  math::SplatScene<float> scene() {
-    math::SplatScene<float> s;
-    s.count = count;
-    s.means = means.data();
-    s.rotations = rotations.data();
-    s.log_scales = log_scales.data();
-    s.opacity_logits = opacity_logits.data();
-    s.sh = sh.data();
-    s.features = feature_dim > 0 ? features.data() : nullptr;
-    s.filter_3d = has_filter ? filter_3d.data() : nullptr;
-    s.sh_degree = sh_degree;
-    s.feature_dim = feature_dim;
-    return s;
+  math::SplatScene<float> scene() const {
+    return math::splat_scene_of<float>(*this, count, sh_degree, feature_dim, has_filter);
   }
   math::RasterOutputs<float> planes() {
     const std::size_t plane = static_cast<std::size_t>(width) * height;

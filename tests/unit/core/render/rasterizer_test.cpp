@@ -29,18 +29,7 @@ struct Scene {
   std::vector<double> means, rotations, log_scales, opacity_logits, sh, features, filter_3d;
   std::size_t size() const { return opacity_logits.size(); }
   SplatScene<double> view() const {
-    SplatScene<double> s;
-    s.count = size();
-    s.means = means.data();
-    s.rotations = rotations.data();
-    s.log_scales = log_scales.data();
-    s.opacity_logits = opacity_logits.data();
-    s.sh = sh.data();
-    s.features = feature_dim > 0 ? features.data() : nullptr;
-    s.filter_3d = filter_3d.empty() ? nullptr : filter_3d.data();
-    s.sh_degree = sh_degree;
-    s.feature_dim = feature_dim;
-    return s;
+    return math::splat_scene_of<double>(*this, size(), sh_degree, feature_dim, !filter_3d.empty());
   }
   std::vector<std::pair<std::string, std::vector<double>*>> params() {
     return {{"means", &means},          {"rotations", &rotations}, {"log_scales", &log_scales},

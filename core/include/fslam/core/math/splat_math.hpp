@@ -60,6 +60,24 @@ struct SplatScene {
   FSLAM_HD T filter(std::size_t i) const { return filter_3d != nullptr ? filter_3d[i] : T(0); }
 };
 
+// The view of any parameter arrays named as in GaussianMap (means, rotations, log_scales,
+// opacity_logits, sh, features, filter_3d; each with data()): host vectors or device buffers.
+template <typename T, typename Arrays>
+SplatScene<T> splat_scene_of(const Arrays& a, std::size_t count, int sh_degree, int feature_dim, bool has_filter) {
+  SplatScene<T> s;
+  s.count = count;
+  s.means = a.means.data();
+  s.rotations = a.rotations.data();
+  s.log_scales = a.log_scales.data();
+  s.opacity_logits = a.opacity_logits.data();
+  s.sh = a.sh.data();
+  s.features = feature_dim > 0 ? a.features.data() : nullptr;
+  s.filter_3d = has_filter ? a.filter_3d.data() : nullptr;
+  s.sh_degree = sh_degree;
+  s.feature_dim = feature_dim;
+  return s;
+}
+
 // Output buffers of the forward pass; sizes from the camera. Any may be null except colour,
 // depth and alpha.
 template <typename T>

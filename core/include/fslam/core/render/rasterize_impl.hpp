@@ -57,18 +57,7 @@ struct RasterState {
 
 // The float views of a GaussianMap and a RenderView that the CPU backend and the benchmark use.
 inline SplatScene<float> splat_scene(const GaussianMap& map) {
-  SplatScene<float> s;
-  s.count = map.size();
-  s.means = map.means.data();
-  s.rotations = map.rotations.data();
-  s.log_scales = map.log_scales.data();
-  s.opacity_logits = map.opacity_logits.data();
-  s.sh = map.sh.data();
-  s.features = map.feature_dim > 0 ? map.features.data() : nullptr;
-  s.filter_3d = map.filter_3d.empty() ? nullptr : map.filter_3d.data();
-  s.sh_degree = map.sh_degree;
-  s.feature_dim = map.feature_dim;
-  return s;
+  return math::splat_scene_of<float>(map, map.size(), map.sh_degree, map.feature_dim, !map.filter_3d.empty());
 }
 
 inline math::SplatCamera<float> splat_camera(const RenderView& view, float near_plane) {
