@@ -236,6 +236,9 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
   app->add_option("--prompt-min-jump", args->prompt.min_jump,
                   "Prompts: growth ratio between thresholds that marks a leak")
       ->capture_default_str();
+  app->add_option("--prompt-min-contrast", args->prompt.min_contrast,
+                  "Prompts: a leak's additions lie at least this x the threshold from the region's mean latent")
+      ->capture_default_str();
   app->add_option("--prompt-smooth", args->prompt.smooth_growth,
                   "Prompts: growth along one smooth surface is no leak")
       ->capture_default_str();

@@ -318,11 +318,13 @@ std::vector<std::vector<int>> smooth_neighbours(const GaussianMap& map, const st
   return out;
 }
 
-// How many Gaussians of `next` outside `region` are not on the seeds' smooth surface: not reached
-// from `seeds` over smooth pairs within `next`. What a step added off the prompted surface; a
-// surface reached through a few leaked boundary Gaussians is off it too.
-std::size_t added_off_surface(const std::vector<std::vector<int>>& smooth, const std::vector<int>& seeds,
-                              const std::vector<std::uint8_t>& region, const std::vector<std::uint8_t>& next) {
+// The step from `region` (grown at one threshold) to `next` (grown at the next, `next_threshold`):
+// what it adds off the seeds' smooth surface (not reached from `seeds` over smooth pairs within
+// `next`; a surface reached through a few leaked boundary Gaussians is off it too), and how far
+// that addition's mean latent lies from the region's.
+PromptStep describe_step(const FeatureSpace& space, const std::vector<std::vector<int>>& smooth,
+                         const std::vector<int>& seeds, const std::vector<std::uint8_t>& region,
+                         const std::vector<std::uint8_t>& next, float next_threshold) {
   std::vector<std::uint8_t> reached(next.size(), 0);
   std::deque<int> queue;
   for (int s : seeds)
@@ -339,10 +341,25 @@ std::size_t added_off_surface(const std::vector<std::vector<int>>& smooth, const
       queue.push_back(j);
     }
   }
-  std::size_t off = 0;
-  for (std::size_t i = 0; i < next.size(); ++i)
-    if (next[i] && !region[i] && !reached[i]) ++off;
-  return off;
+  const int dim = space.dim();
+  std::vector<double> sum_region(static_cast<std::size_t>(dim), 0.0), sum_off(static_cast<std::size_t>(dim), 0.0);
+  PromptStep step;
+  for (std::size_t i = 0; i < next.size(); ++i) {
+    const bool off = next[i] && !region[i] && !reached[i];
+    if (!region[i] && !off) continue;
+    std::vector<double>& sum = region[i] ? sum_region : sum_off;
+    const float* z = space.z(static_cast<int>(i));
+    for (int c = 0; c < dim; ++c) sum[c] += z[c];
+    ++(region[i] ? step.count : step.leaked);
+  }
+  if (step.count == 0 || step.leaked == 0) return step;
+  std::vector<float> mean_region(static_cast<std::size_t>(dim)), mean_off(static_cast<std::size_t>(dim));
+  for (int c = 0; c < dim; ++c) {
+    mean_region[c] = static_cast<float>(sum_region[c] / static_cast<double>(step.count));
+    mean_off[c] = static_cast<float>(sum_off[c] / static_cast<double>(step.leaked));
+  }
+  step.contrast = space.distance(mean_region.data(), mean_off.data()) / next_threshold;
+  return step;
 }
 
 // Every Gaussian's `knn` nearest Gaussians of any opacity within `max_neighbour_distance`.
@@ -385,7 +402,6 @@ bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>
   const std::vector<float> thresholds = prompt_thresholds(config);
   std::vector<std::vector<std::uint8_t>> regions(thresholds.size());
   std::vector<std::vector<int>> seeds(thresholds.size());
-  std::vector<std::size_t> counts(thresholds.size(), 0);
   bool any = false;
   for (std::size_t k = 0; k < thresholds.size(); ++k) {
     regions[k].assign(selected->size(), 0);
@@ -394,18 +410,17 @@ bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>
     any = true;
     grow(space, neighbours, smooth, config.smooth_growth ? config.bend_ratio : 1.0f, seeds[k], zp, thresholds[k],
          &regions[k]);
-    counts[k] = static_cast<std::size_t>(std::count(regions[k].begin(), regions[k].end(), 1));
   }
   if (!any) return false;
-  std::vector<std::size_t> leaked(thresholds.size(), 0);  // per step k -> k + 1
-  for (std::size_t k = 0; k + 1 < thresholds.size(); ++k) {
-    if (!config.smooth_growth) {
-      leaked[k] = counts[k + 1] > counts[k] ? counts[k + 1] - counts[k] : 0;
-    } else if (counts[k] > 0) {
-      leaked[k] = added_off_surface(smooth, seeds[k + 1], regions[k], regions[k + 1]);
+  std::vector<PromptStep> steps(thresholds.size());
+  for (std::size_t k = 0; k < thresholds.size(); ++k) {
+    if (k + 1 < thresholds.size()) {
+      steps[k] = describe_step(space, smooth, seeds[k + 1], regions[k], regions[k + 1], thresholds[k + 1]);
+    } else {
+      steps[k].count = static_cast<std::size_t>(std::count(regions[k].begin(), regions[k].end(), 1));
     }
   }
-  const std::size_t picked = pick_prompt_threshold(counts, leaked, config.min_jump, config.min_jump_region);
+  const std::size_t picked = pick_prompt_threshold(steps, config);
   std::vector<std::uint8_t>& region = regions[picked];
   fill_region(spatial, config.fill_rounds, config.fill_fraction, &region);
   for (std::size_t i = 0; i < region.size(); ++i)
@@ -418,21 +433,16 @@ bool select_region(const FeatureSpace& space, const std::vector<std::vector<int>
 // Paper sec. "Novel-View Open-Set Segmentation": a prompt selects the object in 3D; the
 // threshold that bounds it is chosen per prompt (docs/segmentation.md). +1 keeps an empty region
 // from making every jump infinite.
-std::size_t pick_prompt_threshold(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
-                                  float min_jump, std::size_t min_region) {
-  if (counts.empty()) return 0;
-  std::size_t pick = counts.size() - 1;
-  double best = 0.0;
-  for (std::size_t k = 0; k + 1 < counts.size() && k < leaked.size(); ++k) {
-    if (counts[k] == 0 || counts[k] < min_region) continue;
-    const double before = static_cast<double>(counts[k]) + 1.0;
-    const double ratio = (before + static_cast<double>(leaked[k])) / before;
-    if (ratio >= min_jump && ratio > best) {
-      best = ratio;
-      pick = k;
-    }
+std::size_t pick_prompt_threshold(const std::vector<PromptStep>& steps, const PromptConfig& config) {
+  if (steps.empty()) return 0;
+  for (std::size_t k = 0; k + 1 < steps.size(); ++k) {
+    const PromptStep& s = steps[k];
+    if (s.count == 0 || s.count < config.min_jump_region) continue;
+    const double before = static_cast<double>(s.count) + 1.0;
+    const double ratio = (before + static_cast<double>(s.leaked)) / before;
+    if (ratio >= config.min_jump && s.contrast >= config.min_contrast) return k;
   }
-  return pick;
+  return steps.size() - 1;
 }
 
 bool FeatureGraphConfig::is_valid(std::string* why) const {
@@ -453,6 +463,7 @@ bool PromptConfig::is_valid(std::string* why) const {
     }
     if (!(threshold_step > 0)) return fail(why, "segmentation: threshold_step must be > 0");
     if (!(min_jump > 1)) return fail(why, "segmentation: min_jump must be > 1");
+    if (!(min_contrast >= 0)) return fail(why, "segmentation: min_contrast must be >= 0");
     if (smooth_growth) {
       if (!(smooth_max_angle_deg > 0 && smooth_max_angle_deg < 90)) {
         return fail(why, "segmentation: smooth_max_angle_deg must be in (0, 90)");

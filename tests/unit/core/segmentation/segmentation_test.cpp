@@ -272,28 +272,55 @@ TEST(Segmentation, TheRefinementIn3DClosesTheHolesSpecksLeaveInAnObject) {
   EXPECT_FALSE(bad.is_valid(&why));
 }
 
-// Counts and off-surface additions per threshold step, as the synthetic room gave them.
-TEST(Segmentation, APromptKeepsTheThresholdBeforeTheLargestJumpOfARealRegion) {
-  // A picture: modest growth, then the wall behind it floods in at the step from 5 to 6.
-  const std::vector<std::size_t> picture{143, 165, 205, 227, 279, 423, 4215, 4402, 4560};
-  const std::vector<std::size_t> picture_leak{11, 33, 18, 49, 141, 3804, 193, 156, 0};
-  EXPECT_EQ(pick_prompt_threshold(picture, picture_leak, 1.75f, 100), 5u);
-  // A wall whose tightest region is 38 Gaussians of its own texture: that step (38 -> 125,
-  // x3.2) is no boundary and no longer counts; the largest jump of a real region (x2.3) does.
-  // (On that click: IoU 0.18 at threshold 0, 0.50 at 1, 0.85 at 7.)
-  const std::vector<std::size_t> wall{38, 125, 277, 339, 528, 913, 1176, 1308, 1381};
-  const std::vector<std::size_t> wall_leak{86, 161, 62, 188, 385, 262, 131, 70, 0};
-  EXPECT_EQ(pick_prompt_threshold(wall, wall_leak, 1.75f, 100), 1u);
-  EXPECT_EQ(pick_prompt_threshold(wall, wall_leak, 1.75f, 0), 0u) << "without the minimum region";
-  // A cabinet: 33 -> 1006 at the first step is the cabinet itself; nothing jumps after it.
-  const std::vector<std::size_t> cabinet{33, 1006, 1039, 1067, 1099, 1120, 1133, 1147, 1164};
-  const std::vector<std::size_t> cabinet_leak{975, 40, 28, 32, 21, 13, 14, 17, 0};
-  EXPECT_EQ(pick_prompt_threshold(cabinet, cabinet_leak, 1.75f, 100), 8u);
-  // A jump smaller than min_jump is growth, not a leak.
-  const std::vector<std::size_t> book{112, 120, 129, 140, 147, 161, 174, 182, 357};
-  const std::vector<std::size_t> book_leak{8, 9, 11, 7, 14, 13, 8, 175, 0};
-  EXPECT_EQ(pick_prompt_threshold(book, book_leak, 1.75f, 100), 7u);
-  EXPECT_EQ(pick_prompt_threshold(book, book_leak, 2.0f, 100), 8u);
+// Steps of a prompt's growth: the region's count at thresholds 0.6, 0.65, .., 1.0, what each
+// step adds off the prompted surface and that addition's contrast (RMS latent difference of its
+// mean to the region's, / the next threshold), as the synthetic room of seed 1 gave them.
+std::vector<PromptStep> steps(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
+                              const std::vector<float>& contrast) {
+  std::vector<PromptStep> out(counts.size());
+  for (std::size_t k = 0; k < counts.size(); ++k) out[k] = {counts[k], leaked[k], contrast[k]};
+  return out;
+}
+
+TEST(Segmentation, APromptStopsBeforeTheFirstStepThatAddsALargeDifferentLookingSurface) {
+  const PromptConfig config;
+  // A picture: modest growth, then the wall behind it begins to leak in at the step from 4 to 5
+  // (x1.5, contrast 0.80) and floods in at the next (x10, 0.90). The first leak counts.
+  // (On that click: IoU 0.81 at threshold 3, 0.72 at 4, 0.49 at 5, 0.08 at 6.)
+  const auto picture = steps({143, 165, 205, 227, 279, 423, 4215, 4402, 4560},
+                             {11, 33, 18, 49, 141, 3804, 193, 156, 0},
+                             {0.47f, 0.47f, 0.51f, 0.70f, 0.80f, 0.90f, 0.26f, 0.18f, 0.0f});
+  EXPECT_EQ(pick_prompt_threshold(picture, config), 4u);
+  // A wall: its region more than doubles at several steps, but every addition looks like the
+  // wall (contrast <= 0.46): the rest of the wall, reached through its texture, not a leak.
+  // (On that click: IoU 0.18 at threshold 0, 0.50 at 1, 0.83 at 8.)
+  const auto wall = steps({38, 125, 277, 339, 528, 913, 1176, 1308, 1381},
+                          {86, 161, 62, 188, 385, 262, 131, 70, 0},
+                          {0.37f, 0.46f, 0.26f, 0.42f, 0.40f, 0.42f, 0.32f, 0.33f, 0.0f});
+  EXPECT_EQ(pick_prompt_threshold(wall, config), 8u);
+  // A cabinet: 33 -> 1006 at the first step is the cabinet itself, reached from a region too
+  // small to count however different it looks (contrast 1.13).
+  const auto cabinet = steps({33, 1006, 1039, 1067, 1099, 1120, 1133, 1147, 1164},
+                             {975, 40, 28, 32, 21, 13, 14, 17, 0},
+                             {1.13f, 0.35f, 0.24f, 0.47f, 0.42f, 0.45f, 0.47f, 0.50f, 0.0f});
+  EXPECT_EQ(pick_prompt_threshold(cabinet, config), 8u);
+  PromptConfig no_minimum = config;
+  no_minimum.min_jump_region = 0;
+  EXPECT_EQ(pick_prompt_threshold(cabinet, no_minimum), 0u) << "without the minimum region";
+  // A book: the table it lies on floods in at the last step (x1.96, contrast 0.65; IoU 0.77 at
+  // threshold 7, 0.47 at 8).
+  const auto book = steps({112, 120, 129, 140, 147, 161, 174, 182, 357}, {8, 9, 11, 7, 14, 13, 8, 175, 0},
+                          {0.60f, 0.68f, 0.59f, 0.71f, 0.68f, 0.67f, 0.59f, 0.65f, 0.0f});
+  EXPECT_EQ(pick_prompt_threshold(book, config), 7u);
+  PromptConfig bigger_jump = config;
+  bigger_jump.min_jump = 2.0f;  // a jump smaller than min_jump is growth, not a leak
+  EXPECT_EQ(pick_prompt_threshold(book, bigger_jump), 8u);
+  PromptConfig more_contrast = config;
+  more_contrast.min_contrast = 0.7f;  // an addition nearer the region's mean is the same object
+  EXPECT_EQ(pick_prompt_threshold(book, more_contrast), 8u);
+  // The first leak counts, not the largest: a leak into the floor, then the wall beyond it.
+  const auto chain = steps({500, 520, 1100, 1150, 4000}, {10, 580, 40, 2850, 0}, {0.3f, 0.8f, 0.3f, 0.9f, 0.0f});
+  EXPECT_EQ(pick_prompt_threshold(chain, config), 1u);
 }
 
 TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
@@ -309,6 +336,9 @@ TEST(Segmentation, AnAdaptivePromptConfigNeedsAnOrderedRange) {
   config.min_jump = 1.0f;
   EXPECT_FALSE(config.is_valid(&why));
   config.min_jump = 2.0f;
+  config.min_contrast = -0.1f;
+  EXPECT_FALSE(config.is_valid(&why));
+  config.min_contrast = 0.55f;
   config.smooth_max_angle_deg = 90.0f;  // every pair would be "smooth"
   EXPECT_FALSE(config.is_valid(&why));
   config.smooth_max_angle_deg = 20.0f;

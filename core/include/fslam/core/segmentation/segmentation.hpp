@@ -69,16 +69,22 @@ struct PromptConfig {
   }
   float seed_radius = 0.03f;  // metres around the prompted surface point: the region's seeds
   // Per-prompt threshold: the region is grown at every threshold from min_threshold to
-  // max_threshold (step threshold_step) and kept at the last one before the step where its
-  // Gaussian count grows the most, by at least min_jump times: there it has leaked across a
-  // boundary into a neighbouring surface. Without such a step the loosest threshold stands.
-  // adaptive_threshold = false grows at graph.feature_threshold only. Chosen on the synthetic
-  // room of seed 1 (docs/segmentation.md).
+  // max_threshold (step threshold_step) and kept at the last one before the first step that
+  // leaks across a boundary into a neighbouring surface: the step adds at least (min_jump - 1)
+  // times the region's Gaussians off the prompted surface, and what it adds looks different:
+  // its mean latent lies at least min_contrast x the threshold from the region's. Without such
+  // a step the loosest threshold stands. adaptive_threshold = false grows at
+  // graph.feature_threshold only. Chosen on the synthetic room of seed 1 (docs/segmentation.md).
   bool adaptive_threshold = true;
   float min_threshold = 0.6f;
   float max_threshold = 1.0f;
   float threshold_step = 0.05f;
-  float min_jump = 1.75f;  // ratio of Gaussian counts between neighbouring thresholds
+  float min_jump = 1.5f;  // ratio of Gaussian counts between neighbouring thresholds
+  // The rest of the prompted object, reached through a few blended boundary Gaussians, adds
+  // Gaussians whose mean latent is near the region's; a neighbouring surface adds Gaussians that
+  // only just pass the threshold (on the synthetic room: 0.8-1.0 x the threshold for leaks into a
+  // wall or the floor, 0.3-0.5 for the rest of a wall, a sofa or a book).
+  float min_contrast = 0.55f;
   // A region of fewer Gaussians has no jump that counts: at the tightest thresholds a prompt's
   // region can be a few dozen Gaussians of its own surface's texture, and adding the rest of
   // that surface multiplies it (on the synthetic room a wall was cut to 0.2 IoU that way).
@@ -108,13 +114,19 @@ struct PromptConfig {
   bool is_valid(std::string* why = nullptr) const;
 };
 
-// The index of the threshold a prompt keeps, given its region's Gaussian count at each threshold
-// (counts[k]) and the Gaussians the step from k to k + 1 adds off the prompted surface
-// (leaked[k]): the one before the largest jump (counts[k] + 1 + leaked[k]) / (counts[k] + 1) of
-// at least min_jump taken from a region of at least min_region Gaussians (there the region
-// crossed into a neighbouring surface), else the loosest.
-std::size_t pick_prompt_threshold(const std::vector<std::size_t>& counts, const std::vector<std::size_t>& leaked,
-                                  float min_jump, std::size_t min_region);
+// One step of a prompt's growth, from threshold k to k + 1 (the loosest threshold's has only
+// its count).
+struct PromptStep {
+  std::size_t count = 0;   // Gaussians in the region at threshold k
+  std::size_t leaked = 0;  // Gaussians the step adds off the prompted surface
+  float contrast = 0.0f;   // RMS latent difference of their mean to the region's, / threshold k + 1
+};
+
+// The index of the threshold a prompt keeps (PromptConfig): the one before the first step from
+// a region of at least min_jump_region Gaussians with (count + 1 + leaked) / (count + 1) >=
+// min_jump and contrast >= min_contrast (there the region crossed into a neighbouring
+// surface), else the loosest.
+std::size_t pick_prompt_threshold(const std::vector<PromptStep>& steps, const PromptConfig& config);
 
 // A box prompt in pixels of the view: [u0, u1) x [v0, v1).
 struct BoxPrompt {
