@@ -59,7 +59,9 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   if (!dataset) return fail(why);
   core::GaussianMap map;
   if (!core::read_gaussian_ply(args.ply, &map, &why)) return fail(why);
-  if (map.feature_dim == 0) return fail(args.ply + " carries no features (run fslam run --features)");
+  if (!core::has_features(map)) {
+    return fail(args.ply + " carries no features: its latents are missing or all alike (run fslam run --features)");
+  }
   core::Trajectory trajectory;
   if (!core::read_tum_trajectory(args.trajectory, &trajectory, &why)) return fail(why);
   if (args.every < 1 || args.offset < 0) return fail("--every must be >= 1 and --offset >= 0");

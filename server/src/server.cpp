@@ -144,14 +144,6 @@ std::vector<float> floats(const Sequence& seq) {
                                 : std::vector<float>(seq._buffer, seq._buffer + seq._length);
 }
 
-// A map whose latents are all alike carries no features to segment by: feature_dim 0, or a map
-// built without an encoder (every latent left at its initial value).
-bool has_features(const core::GaussianMap& map) {
-  if (map.feature_dim <= 0 || map.features.empty()) return false;
-  const auto [lo, hi] = std::minmax_element(map.features.begin(), map.features.end());
-  return *hi > *lo;
-}
-
 // Result images as PNG on the wire; `images` point into `buffers`.
 bool attach_images(const std::vector<cv::Mat>& mats, fslam_proto_Result* result,
                    std::vector<std::vector<std::uint8_t>>* buffers,
@@ -886,7 +878,7 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
       version_number = map.versions().version_number();
       version = map.versions().latest();
       if (cache.map != version) {
-        if (!has_features(*version)) {
+        if (!core::has_features(*version)) {
           return core::fail(why, "segment: the map carries no features; stream with features on");
         }
         const core::PromptlessConfig config;
@@ -906,7 +898,7 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
     // On the wire: id + 1 in 16 bits, 0 = none; ids beyond 16 bits saturate (never seen in practice).
     ids.convertTo(labels_image, CV_16UC1, 1.0, 1.0);
   } else {
-    if (!has_features(*version)) {
+    if (!core::has_features(*version)) {
       return core::fail(why, "segment: the map carries no features; stream with features on");
     }
     const core::PromptSelector prompts(*version, core::PromptConfig{});  // one graph for all boxes

@@ -142,10 +142,10 @@ struct UnionFind {
 };
 
 bool check_features(const GaussianMap& map, std::string* why) {
-  if (map.feature_dim <= 0) return fail(why, "segmentation: the map carries no features");
-  if (map.features.size() != map.size() * static_cast<std::size_t>(map.feature_dim)) {
+  if (map.feature_dim > 0 && map.features.size() != map.size() * static_cast<std::size_t>(map.feature_dim)) {
     return fail(why, "segmentation: the map's feature array does not match its size");
   }
+  if (!has_features(map)) return fail(why, "segmentation: the map carries no features (its latents are all alike)");
   return true;
 }
 
@@ -443,6 +443,12 @@ std::size_t pick_prompt_threshold(const std::vector<PromptStep>& steps, const Pr
     if (ratio >= config.min_jump && s.contrast >= config.min_contrast) return k;
   }
   return steps.size() - 1;
+}
+
+bool has_features(const GaussianMap& map) {
+  if (map.feature_dim <= 0 || map.features.empty()) return false;
+  const auto [lo, hi] = std::minmax_element(map.features.begin(), map.features.end());
+  return *hi > *lo;
 }
 
 bool FeatureGraphConfig::is_valid(std::string* why) const {

@@ -114,6 +114,10 @@ struct PromptConfig {
   bool is_valid(std::string* why = nullptr) const;
 };
 
+// Whether the map carries features to segment by: a latent per Gaussian (feature_dim > 0) and
+// not all alike (a map built without an encoder keeps every latent at its initial value).
+bool has_features(const GaussianMap& map);
+
 // One step of a prompt's growth, from threshold k to k + 1 (the loosest threshold's has only
 // its count).
 struct PromptStep {
