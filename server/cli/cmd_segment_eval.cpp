@@ -2,6 +2,7 @@
 // sequence's instances (docs/evaluation.md, "Open-set segmentation"): promptless instances as
 // Hungarian-matched mIoU over the evaluated views, and one click per visible object as mean
 // mask IoU. Views are rendered at the tracked poses of frames the mapper did not train on.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -110,7 +111,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
         if (id != 0 && n >= args.min_object_share * truth.total()) present.push_back(id);
     }
     const bool write_overlays = !args.out.empty() && static_cast<int>(views) < args.overlays;
-    cv::Mat click_paint = cv::Mat::zeros(truth.size(), CV_8UC3);  // each click's mask in its object's colour
+    std::vector<std::pair<int, cv::Mat>> click_masks;  // (object id, mask) for the overlay
     std::vector<cv::Point> clicks;
     for (int id : present) {
       const cv::Mat object = truth == id;
@@ -128,7 +129,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       }
       click_iou.push_back(std::max(0.0, core::mask_iou(mask, truth, id)));
       if (write_overlays) {
-        click_paint.setTo(id_colour(id + 1000), mask);
+        click_masks.push_back({id, mask});
         clicks.push_back(at);
       }
       // Precision and recall of the mask tell over-growth from under-growth.
@@ -167,8 +168,19 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       char name[64];
       std::snprintf(name, sizeof name, "promptless_%06zu.png", i);
       if (!core::write_image((fs::path(args.out) / name).string(), panel, &why)) return fail(why);
-      // One-click masks over the colour (each in its object's ground-truth colour; the click is
-      // the ringed dot), beside the ground truth.
+      // One-click masks over the colour (each in its object's ground-truth colour, outlined; the
+      // click is the ringed dot), beside the ground truth. Largest first, so where masks overlap
+      // the smaller one shows.
+      std::sort(click_masks.begin(), click_masks.end(), [](const auto& a, const auto& b) {
+        return cv::countNonZero(a.second) > cv::countNonZero(b.second);
+      });
+      cv::Mat click_paint = cv::Mat::zeros(truth.size(), CV_8UC3);
+      for (const auto& [id, mask] : click_masks) {
+        click_paint.setTo(id_colour(id + 1000), mask);
+        std::vector<std::vector<cv::Point>> outline;
+        cv::findContours(mask.clone(), outline, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
+        cv::drawContours(click_paint, outline, -1, cv::Scalar(0, 0, 0), 1);
+      }
       cv::addWeighted(colour, 0.5, click_paint, 0.5, 0.0, blended);
       for (const cv::Point& at : clicks) {
         cv::circle(blended, at, 5, cv::Scalar(0, 0, 0), 2);
