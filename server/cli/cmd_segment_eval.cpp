@@ -10,6 +10,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -111,7 +112,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
         if (id != 0 && n >= args.min_object_share * truth.total()) present.push_back(id);
     }
     const bool write_overlays = !args.out.empty() && static_cast<int>(views) < args.overlays;
-    std::vector<std::pair<int, cv::Mat>> click_masks;  // (object id, mask) for the overlay
+    std::vector<std::tuple<double, int, cv::Mat>> click_masks;  // (mask pixels, object id, mask) for the overlay
     std::vector<cv::Point> clicks;
     for (int id : present) {
       const cv::Mat object = truth == id;
@@ -128,12 +129,12 @@ int run_segment_eval(const SegmentEvalArgs& args) {
         continue;
       }
       click_iou.push_back(std::max(0.0, core::mask_iou(mask, truth, id)));
-      if (write_overlays) {
-        click_masks.push_back({id, mask});
-        clicks.push_back(at);
-      }
       // Precision and recall of the mask tell over-growth from under-growth.
       const double in_mask = cv::countNonZero(mask), in_object = cv::countNonZero(object);
+      if (write_overlays) {
+        click_masks.push_back({in_mask, id, mask});
+        clicks.push_back(at);
+      }
       const double both = cv::countNonZero(mask & object);
       // The object the mask spills onto most, and that share of the mask: where a leak went.
       std::map<int, int> spill;
@@ -171,11 +172,10 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       // One-click masks over the colour (each in its object's ground-truth colour, outlined; the
       // click is the ringed dot), beside the ground truth. Largest first, so where masks overlap
       // the smaller one shows.
-      std::sort(click_masks.begin(), click_masks.end(), [](const auto& a, const auto& b) {
-        return cv::countNonZero(a.second) > cv::countNonZero(b.second);
-      });
+      std::sort(click_masks.begin(), click_masks.end(),
+                [](const auto& a, const auto& b) { return std::get<0>(a) > std::get<0>(b); });
       cv::Mat click_paint = cv::Mat::zeros(truth.size(), CV_8UC3);
-      for (const auto& [id, mask] : click_masks) {
+      for (const auto& [pixels, id, mask] : click_masks) {
         click_paint.setTo(id_colour(id + 1000), mask);
         std::vector<std::vector<cv::Point>> outline;
         cv::findContours(mask.clone(), outline, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
