@@ -587,17 +587,35 @@ FSLAM_HD void project_gaussian_backward(const T quat[4], T filter_variance, cons
 }
 
 // ---------------------------------------------------------------- per-pixel compositing
-// Alpha of a projected Gaussian at pixel (px, py); 0 when below kAlphaMin (skipped).
+// The per-pixel functions below take the pixel quantities as P: a scalar (one pixel: CUDA, the
+// references) or simd::Lanes (a row of pixels at once: the CPU backend, math/lanes.hpp). They are
+// therefore branch-free; these are the scalar forms of the lane operations they use.
 template <typename T>
-FSLAM_HD T splat_alpha(const ProjectedGaussian<T>& g, T px, T py, T* gaussian) {
-  const T dx = px - g.u, dy = py - g.v;
-  const T power = T(-0.5) * (g.conic[0] * dx * dx + g.conic[2] * dy * dy) - g.conic[1] * dx * dy;
-  // Outside the footprint: skip before the exponential (most pairs of a tile list).
-  if (power > T(0) || power < g.power_floor) return T(0);
-  *gaussian = exp(power);
-  const T alpha = g.opacity * *gaussian;
-  if (alpha < T(kAlphaMin)) return T(0);
-  return alpha < T(kAlphaMax) ? alpha : T(kAlphaMax);
+FSLAM_HD T select(bool condition, T a, T b) {
+  return condition ? a : b;
+}
+template <typename T>
+FSLAM_HD T min_value(T a, T b) {
+  return a < b ? a : b;
+}
+template <typename T>
+FSLAM_HD T abs_value(T a) {
+  return a < T(0) ? -a : a;
+}
+
+// Alpha of a projected Gaussian at pixel (px, py); 0 (and *gaussian 0) when below kAlphaMin:
+// the pair is skipped.
+template <typename T, typename P>
+FSLAM_HD P splat_alpha(const ProjectedGaussian<T>& g, P px, P py, P* gaussian) {
+  const P dx = px - g.u, dy = py - g.v;
+  const P power = T(-0.5) * (g.conic[0] * dx * dx + g.conic[2] * dy * dy) - g.conic[1] * dx * dy;
+  // Outside the footprint: nothing (the exponential of 0 keeps the lanes finite).
+  const auto inside = (power <= P(T(0))) & (power >= P(g.power_floor));
+  const P e = exp(select(inside, power, P(T(0))));
+  const P alpha = g.opacity * e;
+  const auto keep = inside & (alpha >= P(T(kAlphaMin)));
+  *gaussian = select(keep, e, P(T(0)));
+  return select(keep, min_value(alpha, P(T(kAlphaMax))), P(T(0)));
 }
 
 // Pixel columns of row py whose centres can lie inside the Gaussian's footprint
@@ -643,28 +661,26 @@ FSLAM_HD void splat_row_range(const ProjectedGaussian<T>& g, int* y_begin, int* 
 }
 
 // Camera-plane depth of the Gaussian at pixel (px, py): beta^T [x - mu2D; 1].
-template <typename T>
-FSLAM_HD T splat_planar_depth(const ProjectedGaussian<T>& g, T px, T py) {
+template <typename T, typename P>
+FSLAM_HD P splat_planar_depth(const ProjectedGaussian<T>& g, P px, P py) {
   return g.depth + g.plane[0] * (px - g.u) + g.plane[1] * (py - g.v);
 }
 
 // Backward of alpha and planar depth at one pixel: adds to the Gaussian's 2D gradient.
 // g_alpha: dL/dalpha at this pixel, g_depth_here: dL/d(planar depth at this pixel).
-template <typename T>
-FSLAM_HD void splat_pixel_backward(const ProjectedGaussian<T>& g, T px, T py, T alpha,
-                                   T gaussian, T g_alpha, T g_depth_here,
-                                   ProjectedGradient<T>* grad) {
-  const T dx = px - g.u, dy = py - g.v;
-  if (alpha < T(kAlphaMax)) {  // the clamp has zero gradient
-    grad->opacity += g_alpha * gaussian;
-    const T g_power = g_alpha * alpha;  // alpha = opacity exp(power)
-    // power = -0.5 (c0 dx^2 + c2 dy^2) - c1 dx dy
-    grad->conic[0] += T(-0.5) * g_power * dx * dx;
-    grad->conic[1] += -g_power * dx * dy;
-    grad->conic[2] += T(-0.5) * g_power * dy * dy;
-    grad->u += g_power * (g.conic[0] * dx + g.conic[1] * dy);
-    grad->v += g_power * (g.conic[1] * dx + g.conic[2] * dy);
-  }
+template <typename T, typename P>
+FSLAM_HD void splat_pixel_backward(const ProjectedGaussian<T>& g, P px, P py, P alpha, P gaussian,
+                                   P g_alpha, P g_depth_here, ProjectedGradient<P>* grad) {
+  const P dx = px - g.u, dy = py - g.v;
+  const P ga = select(alpha < P(T(kAlphaMax)), g_alpha, P(T(0)));  // the clamp has zero gradient
+  grad->opacity += ga * gaussian;
+  const P g_power = ga * alpha;  // alpha = opacity exp(power)
+  // power = -0.5 (c0 dx^2 + c2 dy^2) - c1 dx dy
+  grad->conic[0] += T(-0.5) * g_power * dx * dx;
+  grad->conic[1] += -g_power * dx * dy;
+  grad->conic[2] += T(-0.5) * g_power * dy * dy;
+  grad->u += g_power * (g.conic[0] * dx + g.conic[1] * dy);
+  grad->v += g_power * (g.conic[1] * dx + g.conic[2] * dy);
   grad->depth += g_depth_here;
   grad->plane[0] += g_depth_here * dx;
   grad->plane[1] += g_depth_here * dy;
@@ -681,39 +697,40 @@ FSLAM_HD void splat_pixel_backward(const ProjectedGaussian<T>& g, T px, T py, T 
 // dL/d(median depth) when this splat gives the pixel's median depth, else 0. f [D] the splat's
 // features. Adds to the splat's 2D gradient, its feature gradient [D] and the pruning cues
 // sum |dL_rgb/dalpha|, sum |dL_feat/dalpha| (eq. importance, sem_importance).
-template <typename T>
-FSLAM_HD void splat_pair_backward(const ProjectedGaussian<T>& g, const T* f, int D, bool feature_grads, T px,
-                                  T py, T alpha, T gaussian, const T* tot, const T* gp, T g_background,
-                                  T g_alpha_out, T g_median, T* trans, T* pre, ProjectedGradient<T>* pg,
-                                  T* feature_grad, T* imp_rgb, T* imp_feat) {
-  const T Ti = *trans;
-  const T w = alpha * Ti;
-  const T one_minus = T(1) - alpha;
-  const T inv_one_minus = T(1) / one_minus;
-  const T d = splat_planar_depth(g, px, py);
+// A pixel the splat does not reach (alpha 0 and gaussian 0 from splat_alpha) adds nothing and
+// keeps its state, so a row of lanes can be passed whole.
+template <typename T, typename P>
+FSLAM_HD void splat_pair_backward(const ProjectedGaussian<T>& g, const T* f, int D, bool feature_grads, P px,
+                                  P py, P alpha, P gaussian, const P* tot, const P* gp, P g_background,
+                                  P g_alpha_out, P g_median, P* trans, P* pre, ProjectedGradient<P>* pg,
+                                  P* feature_grad, P* imp_rgb, P* imp_feat) {
+  const P Ti = *trans;
+  const P w = alpha * Ti;
+  const P one_minus = T(1) - alpha;
+  const P inv_one_minus = T(1) / one_minus;
+  const P d = splat_planar_depth(g, px, py);
   // dL/dalpha_i = sum_ch g_ch (T_i v_ch - S_ch / (1 - alpha_i)) with S the part composited
   // behind splat i (S = total - prefix - w v), plus the background and accumulated-opacity terms
   // (over 1 - alpha_i). Each channel group is summed as
   // T_i sum g v - (sum g (total - prefix) - w sum g v) / (1 - alpha_i).
-  T gv = T(0), g_rest = T(0);
+  P gv = T(0), g_rest = T(0);
   for (int c = 0; c < 3; ++c) {
     pg->colour[c] += w * gp[c];
     gv += gp[c] * g.colour[c];
     g_rest += gp[c] * (tot[c] - pre[c]);
     pre[c] += w * g.colour[c];
   }
-  const T g_alpha_rgb = Ti * gv - (g_rest - w * gv - g_background) * inv_one_minus;
-  const T g_depth_out = gp[3];
-  T g_depth_here = w * g_depth_out;
-  const T g_alpha_other =
+  const P g_alpha_rgb = Ti * gv - (g_rest - w * gv - g_background) * inv_one_minus;
+  const P g_depth_out = gp[3];
+  const P g_alpha_other =
       g_depth_out * (Ti * d - (tot[3] - pre[3] - w * d) * inv_one_minus) + g_alpha_out * inv_one_minus;
   pre[3] += w * d;
-  g_depth_here += g_median;
-  T g_alpha_feat = T(0);
+  const P g_depth_here = w * g_depth_out + g_median;
+  P g_alpha_feat = T(0);
   if (feature_grads) {
-    T fv = T(0), f_rest = T(0);
+    P fv = T(0), f_rest = T(0);
     for (int c = 0; c < D; ++c) {
-      const T gf = gp[4 + c];
+      const P gf = gp[4 + c];
       feature_grad[c] += w * gf;
       fv += gf * f[c];
       f_rest += gf * (tot[4 + c] - pre[4 + c]);
@@ -723,8 +740,9 @@ FSLAM_HD void splat_pair_backward(const ProjectedGaussian<T>& g, const T* f, int
   } else {
     for (int c = 0; c < D; ++c) pre[4 + c] += w * f[c];
   }
-  *imp_rgb += g_alpha_rgb < T(0) ? -g_alpha_rgb : g_alpha_rgb;
-  *imp_feat += g_alpha_feat < T(0) ? -g_alpha_feat : g_alpha_feat;
+  const auto reached = alpha > P(T(0));
+  *imp_rgb += select(reached, abs_value(g_alpha_rgb), P(T(0)));
+  *imp_feat += select(reached, abs_value(g_alpha_feat), P(T(0)));
   splat_pixel_backward(g, px, py, alpha, gaussian, g_alpha_rgb + g_alpha_feat + g_alpha_other, g_depth_here, pg);
   *trans = Ti * one_minus;  // past splat i; the prefix sums were rolled above
 }
