@@ -22,7 +22,6 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 #include <tbb/global_control.h>
-#include <tbb/task_arena.h>
 
 #include "commands.hpp"
 #include "dataset_args.hpp"
@@ -38,6 +37,7 @@
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/config_options.hpp"
+#include "fslam/server/mapping_thread.hpp"
 
 namespace fslam::cli {
 namespace {
@@ -170,23 +170,16 @@ int run_slam(const RunArgs& args) {
   // In real time the tracker must keep a core to itself (a live sensor does not wait), so
   // mapping's parallel loops get one thread fewer; as fast as it can, they may use all.
   const int mapping_threads = config.realtime ? std::max(1, args.threads - 1) : args.threads;
-  std::thread mapping([&] {
-    std::string mwhy;
-    tbb::task_arena arena(mapping_threads);
-    const bool ok = arena.execute([&] {
-      return pipeline.run_mapping(
-          [&](const core::KeyframeReport& r) {
-            keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms +
-                                  r.refinement.prune_ms);
-            features_ms.push_back(r.features_ms);
-            const std::size_t done = mapped.fetch_add(1) + 1;
-            std::lock_guard<std::mutex> lock(progress_mutex);
-            if (mapping_progress) mapping_progress->update(done);
-          },
-          &mwhy);
-    });
-    if (!ok) mapping_error = mwhy.empty() ? "mapping failed" : mwhy;
-  });
+  server::MappingThread mapping(
+      &pipeline, mapping_threads, config.realtime,
+      [&](const core::KeyframeReport& r) {
+        keyframe_ms.push_back(r.refinement.insert_ms + r.refinement.optimise_ms + r.refinement.prune_ms);
+        features_ms.push_back(r.features_ms);
+        const std::size_t done = mapped.fetch_add(1) + 1;
+        std::lock_guard<std::mutex> lock(progress_mutex);
+        if (mapping_progress) mapping_progress->update(done);
+      },
+      [&](const std::string& mwhy) { mapping_error = mwhy; });
 
   // Tracking on this thread, frames decoded one ahead on another.
   core::Trajectory trajectory;

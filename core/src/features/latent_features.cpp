@@ -42,10 +42,21 @@ std::string LatentFeatures::describe() const {
          std::to_string(autoencoder_.latent_dim());
 }
 
+bool LatentFeatures::encode(const cv::Mat& rgb, FeaturePyramid* pyramid, std::string* why) {
+  return encoder_->encode(rgb, pyramid, why);
+}
+
 bool LatentFeatures::latent_image(const cv::Mat& rgb, int width, int height, PlanarImage* out,
                                   std::string* why) {
+  return encode(rgb, &pyramid_, why) && latent_image(pyramid_, width, height, out, why);
+}
+
+bool LatentFeatures::latent_image(const FeaturePyramid& pyramid, int width, int height,
+                                  PlanarImage* out, std::string* why) {
   if (width <= 0 || height <= 0) return fail(why, "features: empty target size");
-  if (!encoder_->encode(rgb, &pyramid_, why)) return false;
+  if (pyramid.levels.empty() || pyramid.image_width <= 0 || pyramid.image_height <= 0) {
+    return fail(why, "features: no encoded frame");
+  }
   // The coarse grid: every grid_step-th target pixel, plus the last row and column.
   auto axis = [&](int n) {
     std::vector<int> at;
@@ -58,14 +69,14 @@ bool LatentFeatures::latent_image(const cv::Mat& rgb, int width, int height, Pla
   const int c = autoencoder_.input_dim(), d = autoencoder_.latent_dim();
   u_.resize(static_cast<std::size_t>(gw) * gh * c);
   f_.resize(static_cast<std::size_t>(gw) * gh * d);
-  const float sx = static_cast<float>(rgb.cols) / static_cast<float>(width);
-  const float sy = static_cast<float>(rgb.rows) / static_cast<float>(height);
+  const float sx = static_cast<float>(pyramid.image_width) / static_cast<float>(width);
+  const float sy = static_cast<float>(pyramid.image_height) / static_cast<float>(height);
   for (int j = 0; j < gh; ++j)
     for (int i = 0; i < gw; ++i) {
       // Target pixel centre -> frame pixel coordinates (centres at integers).
       const float u = (static_cast<float>(xs[i]) + 0.5f) * sx - 0.5f;
       const float v = (static_cast<float>(ys[j]) + 0.5f) * sy - 0.5f;
-      sample_features(pyramid_, u, v, &u_[(static_cast<std::size_t>(j) * gw + i) * c]);
+      sample_features(pyramid, u, v, &u_[(static_cast<std::size_t>(j) * gw + i) * c]);
     }
   autoencoder_.encode(u_.data(), gw * gh, f_.data());  // f_i = phi(u_i)
   // Bilinear between grid samples.

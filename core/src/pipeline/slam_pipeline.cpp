@@ -1,9 +1,5 @@
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <utility>
@@ -43,8 +39,12 @@ bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
       tracking_features_ = LatentFeatures::create(config_.features, why);
       if (!tracking_features_) return false;
     }
+    // Encoded once: the tracker samples the latent on its lattice, and a keyframe hands the
+    // pyramid on to the mapper for its latent target.
+    if (!tracking_pyramid_) tracking_pyramid_ = std::make_shared<FeaturePyramid>();
     const int stride = config_.tracker.preprocess.stride;
-    if (!tracking_features_->latent_image(frame.colour, frame.camera.width / stride,
+    if (!tracking_features_->encode(frame.colour, tracking_pyramid_.get(), why) ||
+        !tracking_features_->latent_image(*tracking_pyramid_, frame.camera.width / stride,
                                           frame.camera.height / stride, &latent, why)) {
       return false;
     }
@@ -56,15 +56,17 @@ bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
   result->timings.features_ms = features_ms;
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
   if (result->keyframe) {
-    MapperKeyframe kf;
+    QueuedKeyframe queued;
+    MapperKeyframe& kf = queued.keyframe;
     kf.frame_id = frame.id;
     kf.T_world_camera = mapping_pose != nullptr ? *mapping_pose : result->T_world_camera;
     kf.camera = frame.camera;
     kf.colour = frame.colour;
     kf.depth = frame.depth;
+    queued.pyramid = std::move(tracking_pyramid_);  // the next frame encodes into a new one
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      queue_.push_back(std::move(kf));
+      queue_.push_back(std::move(queued));
     }
     wake_.notify_one();
   }
@@ -91,12 +93,8 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
                          " channels but mapper.feature_dim is " +
                          std::to_string(config_.mapper.feature_dim));
   }
-  // In real time mapping yields the CPU to tracking and decoding whenever they want it (nice 10
-  // on the calling thread: Linux priorities are per thread): on two cores those two share what
-  // mapping leaves, and a late frame is a skipped frame.
-  if (config_.realtime) setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
   for (;;) {
-    MapperKeyframe kf;
+    QueuedKeyframe queued;
     std::size_t waiting = 0;
     {
       std::unique_lock<std::mutex> lock(mutex_);
@@ -114,7 +112,7 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
         wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
       }
       if (queue_.empty()) return true;  // finished and drained
-      kf = std::move(queue_.front());
+      queued = std::move(queue_.front());
       queue_.pop_front();
       waiting = queue_.size();
     }
@@ -124,15 +122,20 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
                             iterations / static_cast<int>(1 + waiting));
     }
     mapper_.set_iterations_per_keyframe(iterations);
+    MapperKeyframe& kf = queued.keyframe;
     KeyframeReport report;
     report.frame_id = kf.frame_id;
     if (features_) {
       // The latent target of L_feat (eq. modeling_losses) at the mapper's training resolution.
       const auto t0 = std::chrono::steady_clock::now();
       const PinholeCamera training = kf.camera.scaled(config_.mapper.training_scale);
-      if (!features_->latent_image(kf.colour, training.width, training.height, &kf.feature_target, why)) {
-        return false;
-      }
+      const bool ok =
+          queued.pyramid ? features_->latent_image(*queued.pyramid, training.width, training.height,
+                                                   &kf.feature_target, why)
+                         : features_->latent_image(kf.colour, training.width, training.height,
+                                                   &kf.feature_target, why);
+      if (!ok) return false;
+      queued.pyramid.reset();
       report.features_ms =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     }

@@ -35,16 +35,23 @@ class LatentFeatures {
   LatentFeatures(std::unique_ptr<FeatureEncoder> encoder, FeatureAutoencoder autoencoder, int grid_step);
 
   int dim() const { return autoencoder_.latent_dim(); }
-  // out: [D, height, width], the latent of the frame resized to width x height (pixel centres
-  // map as PinholeCamera::scaled does). rgb: [H, W] CV_8UC3 RGB. Not thread-safe.
+  // The image encoder's pyramid of a frame: the costly part (a frame is encoded once, and each
+  // user computes the latent at its own resolution from it). rgb: [H, W] CV_8UC3 RGB.
+  bool encode(const cv::Mat& rgb, FeaturePyramid* pyramid, std::string* why);
+  // out: [D, height, width], the latent of the encoded frame resized to width x height (pixel
+  // centres map as PinholeCamera::scaled does): phi on a grid, interpolated between.
+  bool latent_image(const FeaturePyramid& pyramid, int width, int height, PlanarImage* out,
+                    std::string* why);
+  // encode, then latent_image.
   bool latent_image(const cv::Mat& rgb, int width, int height, PlanarImage* out, std::string* why);
   std::string describe() const;
+  // None of the calls is thread-safe: each thread keeps its own LatentFeatures.
 
  private:
   std::unique_ptr<FeatureEncoder> encoder_;
   FeatureAutoencoder autoencoder_;
   int grid_step_;
-  FeaturePyramid pyramid_;
+  FeaturePyramid pyramid_;    // the last frame of latent_image(rgb, ...)
   std::vector<float> u_, f_;  // [N, C] samples and [N, D] latents of the coarse grid
 };
 

@@ -64,7 +64,7 @@ class SlamPipeline {
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera);
 
   // Mapping thread: runs until finish() was called and every queued keyframe is mapped. In real
-  // time it lowers the calling thread's priority (nice 10) so tracking never waits for it.
+  // time the caller runs it at a lower priority than tracking (server::MappingThread does).
   // on_keyframe (optional) is called after each keyframe's refinement round. Returns false with
   // `why` when mapping failed (the tracker keeps running; the failure is reported once).
   bool run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
@@ -88,13 +88,20 @@ class SlamPipeline {
   PipelineConfig config_;
   Tracker tracker_;
   Mapper mapper_;
+  // A keyframe on its way to the mapper, with the encoder's pyramid of its colour when the
+  // tracker already encoded the frame (the mapper then only runs phi at its resolution).
+  struct QueuedKeyframe {
+    MapperKeyframe keyframe;
+    std::shared_ptr<const FeaturePyramid> pyramid;
+  };
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
   // The tracking thread's own encoder (LatentFeatures is not thread-safe), made at the first
-  // frame when features_ is set and track_with_features is on.
+  // frame when features_ is set and track_with_features is on, and the pyramid it fills.
   std::unique_ptr<LatentFeatures> tracking_features_;
+  std::shared_ptr<FeaturePyramid> tracking_pyramid_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
-  std::deque<MapperKeyframe> queue_;
+  std::deque<QueuedKeyframe> queue_;
   bool finished_ = false;
 };
 
