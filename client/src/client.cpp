@@ -172,17 +172,17 @@ void Client::on_status(std::function<void(const StatusUpdate&)> callback) {
 }
 
 bool Client::open_session(const std::string& session, const std::string& map_name, int timeout_ms,
-                          std::string* why) {
-  return control(session, map_name, true, false, timeout_ms, why);
+                          std::string* why, const SessionOptions& options) {
+  return control(session, map_name, true, false, options.policy, timeout_ms, why);
 }
 
 bool Client::close_session(const std::string& session, int timeout_ms, std::string* why) {
-  return control(session, "", false, false, timeout_ms, why);
+  return control(session, "", false, false, FramePolicy::server_default, timeout_ms, why);
 }
 
 bool Client::attach_map(const std::string& map_name, int timeout_ms, std::string* why) {
   if (map_name.empty()) return fail(why, "attach: no map name");
-  return control(id_, map_name, true, true, timeout_ms, why);
+  return control(id_, map_name, true, true, FramePolicy::server_default, timeout_ms, why);
 }
 
 std::uint64_t Client::new_request_id() {
@@ -191,7 +191,7 @@ std::uint64_t Client::new_request_id() {
 }
 
 bool Client::control(const std::string& session, const std::string& map_name, bool open,
-                     bool attach_only, int timeout_ms, std::string* why) {
+                     bool attach_only, FramePolicy policy, int timeout_ms, std::string* why) {
   if (session.empty()) return fail(why, "session control: no session name");
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
@@ -204,6 +204,9 @@ bool Client::control(const std::string& session, const std::string& map_name, bo
   msg.command = open ? fslam_proto_SESSION_OPEN : fslam_proto_SESSION_CLOSE;
   msg.map_name = m.data();
   msg.attach_only = attach_only;
+  msg.policy = policy == FramePolicy::live    ? fslam_proto_POLICY_LIVE
+               : policy == FramePolicy::queue ? fslam_proto_POLICY_QUEUE
+                                              : fslam_proto_POLICY_SERVER_DEFAULT;
   const std::string what = attach_only ? "attach to map '" + map_name + "'"
                                        : std::string(open ? "open" : "close") + " session '" + session + "'";
   Answer answer;
@@ -359,6 +362,11 @@ void Client::listen() {
       update.frames_received = st.frames_received;
       update.frames_processed = st.frames_processed;
       update.frames_dropped = st.frames_dropped;
+      update.frames_skipped = st.frames_skipped;
+      update.last_skip_reason = st.last_skip_reason ? st.last_skip_reason : "";
+      update.frame_policy = st.frame_policy ? st.frame_policy : "";
+      update.queue_ms_p50 = st.queue_ms_p50;
+      update.queue_ms_p99 = st.queue_ms_p99;
       update.map_gaussians = st.map_gaussians;
       update.resident_bytes = st.resident_bytes;
       update.track_ms_p50 = st.track_ms_p50;
@@ -414,6 +422,8 @@ void Client::listen() {
       for (int k = 0; k < 3; ++k) update.translation[k] = p.T_world_camera.translation[k];
       for (int k = 0; k < 4; ++k) update.rotation[k] = p.T_world_camera.rotation[k];
       update.state = static_cast<int>(p.state);
+      update.skipped = p.state == fslam_proto_TRACKING_SKIPPED;
+      update.note = p.note ? p.note : "";
       update.keyframe = p.keyframe;
       update.decode_ms = p.decode_ms;
       update.queue_ms = p.queue_ms;

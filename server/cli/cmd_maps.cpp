@@ -37,8 +37,8 @@ int run_status(const StatusArgs& args) {
     return fail("no status from a server on prefix '" + args.client.prefix + "' within " +
                 std::to_string(args.seconds) + " s (is fslam-server running with that prefix?)");
   }
-  std::printf("%-16s %-14s %9s %8s %8s %9s %9s %5s %8s %31s %8s\n", "map", "session", "gaussians",
-              "version", "tracked", "received", "processed", "queue", "dropped",
+  std::printf("%-16s %-14s %-6s %9s %8s %8s %9s %9s %5s %8s %8s %31s %8s\n", "map", "session", "policy",
+              "gaussians", "version", "tracked", "received", "processed", "queue", "skipped", "dropped",
               "ms p50/p99: decode track map", "rss MiB");
   for (const auto& [key, s] : latest) {
     char timing[64] = "-";
@@ -46,15 +46,18 @@ int run_status(const StatusArgs& args) {
       std::snprintf(timing, sizeof timing, "%.0f/%.0f %.0f/%.0f %.0f/%.0f", s.decode_ms_p50,
                     s.decode_ms_p99, s.track_ms_p50, s.track_ms_p99, s.map_ms_p50, s.map_ms_p99);
     }
-    std::printf("%-16s %-14s %9llu %8llu %8llu %9llu %9llu %5u %8llu %31s %8.0f\n",
+    std::printf("%-16s %-14s %-6s %9llu %8llu %8llu %9llu %9llu %5u %8llu %8llu %31s %8.0f\n",
                 s.map_name.c_str(), s.streaming ? s.session.c_str() : "(idle)",
+                s.streaming ? s.frame_policy.c_str() : "-",
                 static_cast<unsigned long long>(s.map_gaussians),
                 static_cast<unsigned long long>(s.map_version),
                 static_cast<unsigned long long>(s.frames_tracked),
                 static_cast<unsigned long long>(s.frames_received),
                 static_cast<unsigned long long>(s.frames_processed), s.queue_depth,
+                static_cast<unsigned long long>(s.frames_skipped),
                 static_cast<unsigned long long>(s.frames_dropped), timing,
                 static_cast<double>(s.resident_bytes) / (1024.0 * 1024.0));
+    if (!s.last_skip_reason.empty()) std::printf("  last skip: %s\n", s.last_skip_reason.c_str());
     if (!s.last_drop_reason.empty()) std::printf("  last drop: %s\n", s.last_drop_reason.c_str());
   }
   return 0;

@@ -5,14 +5,17 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include "commands.hpp"
 #include "dataset_args.hpp"
@@ -30,7 +33,9 @@ struct StreamArgs {
   std::string map;
   std::string rate = "max";  // frames per second, or max
   std::string out;
+  std::string report;        // JSON summary
   std::string prefix = "fslam";
+  std::string policy = "server";  // live, queue, or the server's default
   int timeout_s = 60;        // for the last poses after the last frame
 };
 
@@ -41,33 +46,55 @@ struct SendTimes {
   TimePoint encode_start, written;  // push_frame called, push_frame returned (encoded and written)
 };
 
-void print_latency(const std::map<std::uint64_t, SendTimes>& sent,
+// Per tracked frame, milliseconds: each stage's samples.
+struct Latency {
+  std::vector<double> total, encode, decode, queue, track, rest;
+};
+
+Latency latency_of(const std::map<std::uint64_t, SendTimes>& sent,
                    const std::map<std::uint64_t, TimePoint>& arrived,
                    const std::map<std::uint64_t, client::PoseUpdate>& poses) {
-  std::vector<double> total, encode, decode, queue, track, rest;
+  Latency l;
   auto ms = [](TimePoint a, TimePoint b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   for (const auto& [id, t] : arrived) {
     const auto s = sent.find(id);
     if (s == sent.end()) continue;
     const client::PoseUpdate& p = poses.at(id);
-    total.push_back(ms(s->second.encode_start, t));
-    encode.push_back(ms(s->second.encode_start, s->second.written));
-    decode.push_back(p.decode_ms);
-    queue.push_back(p.queue_ms);
-    track.push_back(p.track_ms);
-    rest.push_back(ms(s->second.written, t) - p.decode_ms - p.queue_ms - p.track_ms);
+    l.total.push_back(ms(s->second.encode_start, t));
+    l.encode.push_back(ms(s->second.encode_start, s->second.written));
+    l.decode.push_back(p.decode_ms);
+    l.queue.push_back(p.queue_ms);
+    l.track.push_back(p.track_ms);
+    l.rest.push_back(ms(s->second.written, t) - p.decode_ms - p.queue_ms - p.track_ms);
   }
-  if (total.empty()) return;
-  auto row = [](const char* name, const std::vector<double>& v) {
-    std::printf("  %-34s %8.2f %8.2f\n", name, percentile(v, 0.5), percentile(v, 0.99));
-  };
-  std::printf("latency per frame, ms (%zu frames)      p50      p99\n", total.size());
-  row("frame -> pose (client clock)", total);
-  row("  client: encode + write", encode);
-  row("  server: decode", decode);
-  row("  server: queue", queue);
-  row("  server: track", track);
-  row("  DDS transport + publish (rest)", rest);
+  return l;
+}
+
+// The stages in print order: name in the report, label, samples.
+std::vector<std::tuple<const char*, const char*, const std::vector<double>*>> stages(const Latency& l) {
+  return {{"frame_to_pose", "frame -> pose (client clock)", &l.total},
+          {"client_encode_write", "  client: encode + write", &l.encode},
+          {"server_decode", "  server: decode", &l.decode},
+          {"server_queue", "  server: queue", &l.queue},
+          {"server_track", "  server: track", &l.track},
+          {"transport_publish", "  DDS transport + publish (rest)", &l.rest}};
+}
+
+void print_latency(const Latency& l) {
+  if (l.total.empty()) return;
+  std::printf("latency per tracked frame, ms (%zu frames)  p50      p99\n", l.total.size());
+  for (const auto& [key, label, v] : stages(l)) {
+    std::printf("  %-34s %8.2f %8.2f\n", label, percentile(*v, 0.5), percentile(*v, 0.99));
+  }
+}
+
+nlohmann::json latency_json(const Latency& l) {
+  nlohmann::json j;
+  for (const auto& [key, label, v] : stages(l)) {
+    j[key] = {{"p50_ms", v->empty() ? 0.0 : percentile(*v, 0.5)},
+              {"p99_ms", v->empty() ? 0.0 : percentile(*v, 0.99)}};
+  }
+  return j;
 }
 
 int run_stream(const StreamArgs& args) {
@@ -85,6 +112,10 @@ int run_stream(const StreamArgs& args) {
     }
     if (!(rate > 0)) return fail("--rate must be a positive number of frames per second or 'max'");
   }
+  client::SessionOptions session_options;
+  if (args.policy == "live") session_options.policy = client::FramePolicy::live;
+  else if (args.policy == "queue") session_options.policy = client::FramePolicy::queue;
+  else if (args.policy != "server") return fail("--policy must be live, queue or server");
   client::ClientOptions copts;
   copts.prefix = args.prefix;
   client::Client client(copts);
@@ -92,11 +123,16 @@ int run_stream(const StreamArgs& args) {
   std::map<std::uint64_t, client::PoseUpdate> poses;
   std::map<std::uint64_t, SendTimes> sent;
   std::map<std::uint64_t, TimePoint> arrived;
+  std::map<std::uint64_t, std::string> skipped;  // frame -> why (live policy)
   std::atomic<std::size_t> errors{0};
   client.on_pose([&](const client::PoseUpdate& p) {
     if (p.session != args.session) return;
     const auto now = std::chrono::steady_clock::now();
     std::lock_guard<std::mutex> lock(mutex);
+    if (p.skipped) {
+      skipped[p.frame_id] = p.note;
+      return;
+    }
     poses[p.frame_id] = p;
     arrived[p.frame_id] = now;
   });
@@ -106,7 +142,8 @@ int run_stream(const StreamArgs& args) {
       std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
     }
   });
-  if (!client.open_session(args.session, args.map.empty() ? args.session : args.map, 10000, &why)) {
+  if (!client.open_session(args.session, args.map.empty() ? args.session : args.map, 10000, &why,
+                           session_options)) {
     return fail(why);
   }
   const std::size_t n = dataset->size();
@@ -158,13 +195,13 @@ int run_stream(const StreamArgs& args) {
     progress.update(i + 1);
   }
   progress.finish();
-  // Wait for the poses of every frame (or for the server to say why some will not come).
+  // Wait for every frame's outcome: a pose, a skip, or an error saying why not.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(args.timeout_s);
   for (;;) {
     std::size_t have = 0;
     {
       std::lock_guard<std::mutex> lock(mutex);
-      have = poses.size();
+      have = poses.size() + skipped.size();
     }
     if (have + errors.load() >= n || std::chrono::steady_clock::now() > deadline) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
@@ -191,22 +228,44 @@ int run_stream(const StreamArgs& args) {
     }
   }
   const double elapsed = std::chrono::duration<double>(last_pose - start).count();
-  std::printf("frames sent %zu, poses received %zu, server errors %zu, %.1f s to the last pose "
-              "(%.1f frames/s)\n",
-              n, trajectory.size(), errors.load(), elapsed, static_cast<double>(n) / elapsed);
-  print_latency(sent, arrived, poses);
+  std::size_t skip_count = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    skip_count = skipped.size();
+  }
+  const std::size_t missing = n - std::min(n, trajectory.size() + skip_count + errors.load());
+  std::printf("frames sent %zu: tracked %zu, skipped %zu (live policy: a newer frame came while "
+              "the tracker was busy), errors %zu, no answer %zu; %.1f s to the last pose "
+              "(%.1f tracked frames/s)\n",
+              n, trajectory.size(), skip_count, errors.load(), missing, elapsed,
+              static_cast<double>(trajectory.size()) / std::max(elapsed, 1e-9));
+  const Latency latency = latency_of(sent, arrived, poses);
+  print_latency(latency);
   if (!args.out.empty()) {
     if (!core::write_tum_trajectory(args.out, trajectory, &why)) return fail(why);
     std::printf("wrote %s\n", args.out.c_str());
   }
+  nlohmann::json report = {{"frames_sent", n},          {"tracked", trajectory.size()},
+                           {"skipped", skip_count},     {"errors", errors.load()},
+                           {"no_answer", missing},      {"seconds_to_last_pose", elapsed},
+                           {"policy", args.policy},     {"rate", args.rate},
+                           {"latency", latency_json(latency)}};
   if (dataset->has_ground_truth() && !trajectory.empty()) {
     core::AteResult ate;
     if (core::compute_ate(dataset->ground_truth(), trajectory, core::AteConfig{}, &ate, &why)) {
-      std::printf("ATE RMSE %.4f m (mean %.4f) over %zu pairs, SE(3)\n", ate.rmse, ate.mean, ate.pairs);
+      std::printf("ATE RMSE %.4f m (mean %.4f) over %zu tracked frames, SE(3)\n", ate.rmse, ate.mean,
+                  ate.pairs);
+      report["ate"] = {{"rmse_m", ate.rmse}, {"mean_m", ate.mean}, {"pairs", ate.pairs}};
     }
   }
-  return trajectory.size() == n ? 0 : fail("only " + std::to_string(trajectory.size()) + " of " +
-                                           std::to_string(n) + " poses arrived");
+  if (!args.report.empty()) {
+    std::ofstream(args.report) << report.dump(2) << "\n";
+    std::printf("wrote %s\n", args.report.c_str());
+  }
+  // Skips are the live policy working; errors and frames with no outcome are failures.
+  if (errors.load() > 0) return fail(std::to_string(errors.load()) + " frame(s) got an error from the server");
+  if (missing > 0) return fail(std::to_string(missing) + " of " + std::to_string(n) + " frames got no answer");
+  return 0;
 }
 
 }  // namespace
@@ -221,7 +280,13 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
   app->add_option("--map", args->map, "Map to create or attach to (default: the session name)");
   app->add_option("--rate", args->rate, "Frames per second, or max")->capture_default_str();
   app->add_option("--out", args->out, "Trajectory of the received poses (TUM)");
+  app->add_option("--report", args->report,
+                  "JSON summary: frames sent / tracked / skipped / errors, ATE, latency by stage");
   app->add_option("--prefix", args->prefix, "Topic prefix of the server")->capture_default_str();
+  app->add_option("--policy", args->policy,
+                  "Frame policy of the session: live (track the newest frame, skip older ones "
+                  "waiting), queue (track every frame), or the server's default")
+      ->capture_default_str();
   app->add_option("--timeout", args->timeout_s, "Seconds to wait for the last poses")
       ->capture_default_str();
   commands->push_back({app, [args] { return run_stream(*args); }});

@@ -1,8 +1,8 @@
 #include "fslam/server/frame_codec.hpp"
 
 #include <cmath>
+#include <cstdint>
 #include <cstring>
-#include <vector>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -12,80 +12,135 @@
 namespace fslam::server {
 namespace {
 
-bool decode_image(const fslam_proto_Image& image, int cv_type, const char* what, cv::Mat* out,
-                  std::string* why) {
+// Focal lengths a real camera can have at the frame's size: a field of view between about 0.1
+// and 179 degrees. Outside, the projection math overflows or degenerates.
+bool plausible_focal(double f, int size) {
+  return f >= 0.005 * size && f <= 1000.0 * size;
+}
+
+bool accept_image(const fslam_proto_Image& image, int channels, int bytes_per_channel,
+                  const char* what, EncodedImage* out, std::string* why) {
+  const std::string name(what);
   const std::size_t n = image.data._length;
-  if (n == 0 || image.data._buffer == nullptr) return core::fail(why, std::string(what) + ": empty payload");
-  if (n > kMaxImageBytes) return core::fail(why, std::string(what) + ": payload over the size limit");
-  const int channels = CV_MAT_CN(cv_type);
-  if (image.channels != channels) {
-    return core::fail(why, std::string(what) + ": expected " + std::to_string(channels) +
-                               " channel(s), got " + std::to_string(image.channels));
+  if (n == 0 || image.data._buffer == nullptr) return core::fail(why, name + ": empty payload");
+  if (n > kMaxImageBytes) return core::fail(why, name + ": payload over the size limit");
+  if (image.encoding != fslam_proto_ENCODING_RAW && image.encoding != fslam_proto_ENCODING_PNG &&
+      image.encoding != fslam_proto_ENCODING_JPEG) {
+    return core::fail(why, name + ": unknown encoding " + std::to_string(static_cast<int>(image.encoding)));
+  }
+  if (image.channels != channels || image.bytes_per_channel != bytes_per_channel) {
+    return core::fail(why, name + ": expected " + std::to_string(channels) + " channel(s) of " +
+                               std::to_string(bytes_per_channel) + " byte(s), got " +
+                               std::to_string(image.channels) + " of " +
+                               std::to_string(image.bytes_per_channel));
   }
   if (image.encoding == fslam_proto_ENCODING_RAW) {
-    const std::size_t expected = static_cast<std::size_t>(image.width) * image.height *
-                                 CV_ELEM_SIZE(cv_type);
+    const std::size_t expected = static_cast<std::size_t>(image.width) * image.height * channels *
+                                 bytes_per_channel;
     if (n != expected) {
-      return core::fail(why, std::string(what) + ": raw payload of " + std::to_string(n) +
-                                 " bytes, expected " + std::to_string(expected));
+      return core::fail(why, name + ": raw payload of " + std::to_string(n) + " bytes, expected " +
+                                 std::to_string(expected));
     }
+  }
+  out->encoding = image.encoding;
+  out->width = image.width;
+  out->height = image.height;
+  out->channels = image.channels;
+  out->bytes_per_channel = image.bytes_per_channel;
+  out->data.assign(image.data._buffer, image.data._buffer + n);
+  return true;
+}
+
+bool decode_image(const EncodedImage& image, int cv_type, const char* what, cv::Mat* out,
+                  std::string* why) {
+  const std::string name(what);
+  if (image.encoding == fslam_proto_ENCODING_RAW) {
     *out = cv::Mat(static_cast<int>(image.height), static_cast<int>(image.width), cv_type);
-    std::memcpy(out->data, image.data._buffer, n);
+    std::memcpy(out->data, image.data.data(), image.data.size());
     return true;
   }
-  const std::vector<std::uint8_t> bytes(image.data._buffer, image.data._buffer + n);
+  const cv::Mat bytes(1, static_cast<int>(image.data.size()), CV_8UC1,
+                      const_cast<std::uint8_t*>(image.data.data()));
   cv::Mat decoded = cv::imdecode(bytes, cv_type == CV_16UC1 ? cv::IMREAD_UNCHANGED : cv::IMREAD_COLOR);
-  if (decoded.empty()) return core::fail(why, std::string(what) + ": cannot decode the payload");
-  if (decoded.type() != cv_type) return core::fail(why, std::string(what) + ": wrong pixel type after decoding");
-  if (cv_type == CV_8UC3) cv::cvtColor(decoded, decoded, cv::COLOR_BGR2RGB);
+  if (decoded.empty()) return core::fail(why, name + ": cannot decode the payload");
+  if (decoded.type() != cv_type) return core::fail(why, name + ": wrong pixel type after decoding");
   if (decoded.cols != static_cast<int>(image.width) || decoded.rows != static_cast<int>(image.height)) {
-    return core::fail(why, std::string(what) + ": decoded size differs from the declared one");
+    return core::fail(why, name + ": decoded size differs from the declared one");
   }
+  if (cv_type == CV_8UC3) cv::cvtColor(decoded, decoded, cv::COLOR_BGR2RGB);
   *out = decoded;
   return true;
 }
 
 }  // namespace
 
-bool decode_frame(const fslam_proto_Frame& msg, core::RgbdFrame* frame, std::string* why) {
+bool accept_frame(const fslam_proto_Frame& msg, EncodedFrame* out, std::string* why) {
   const fslam_proto_Intrinsics& k = msg.intrinsics;
   core::PinholeCamera camera{k.fx, k.fy, k.cx, k.cy, static_cast<int>(k.width),
                              static_cast<int>(k.height)};
   std::string reason;
   if (!camera.is_valid(&reason)) return core::fail(why, "intrinsics: " + reason);
+  if (!plausible_focal(camera.fx, camera.width) || !plausible_focal(camera.fy, camera.height)) {
+    return core::fail(why, "intrinsics: focal lengths fx=" + std::to_string(camera.fx) + ", fy=" +
+                               std::to_string(camera.fy) + " are implausible for a " +
+                               std::to_string(camera.width) + "x" + std::to_string(camera.height) +
+                               " image");
+  }
   if (!(msg.depth_scale > 0) || !std::isfinite(msg.depth_scale)) {
     return core::fail(why, "depth scale must be positive and finite");
   }
+  if (!std::isfinite(msg.timestamp)) return core::fail(why, "timestamp must be finite");
+  if (msg.frame_id > static_cast<std::uint64_t>(INT64_MAX)) return core::fail(why, "frame id must be below 2^63");
   if (msg.depth.encoding == fslam_proto_ENCODING_JPEG) return core::fail(why, "depth: JPEG is lossy; send RAW or PNG");
   if (msg.colour.width != k.width || msg.colour.height != k.height || msg.depth.width != k.width ||
       msg.depth.height != k.height) {
     return core::fail(why, "colour and depth must have the intrinsics' size");
   }
-  cv::Mat colour, depth_raw;
-  if (!decode_image(msg.colour, CV_8UC3, "colour", &colour, why) ||
-      !decode_image(msg.depth, CV_16UC1, "depth", &depth_raw, why)) {
-    return false;
-  }
-  cv::Mat depth;
-  depth_raw.convertTo(depth, CV_32FC1, 1.0 / msg.depth_scale);
-  depth.setTo(0.0f, depth_raw == 65535);
-  frame->id = static_cast<std::int64_t>(msg.frame_id);
-  frame->timestamp = msg.timestamp;
-  frame->colour = colour;
-  frame->depth = depth;
-  frame->camera = camera;
-  frame->T_world_camera_gt.reset();
+  out->T_world_camera_gt.reset();
   if (msg.has_gt_pose) {
     const auto& p = msg.gt_pose;
     const Eigen::Quaterniond q(p.rotation[3], p.rotation[0], p.rotation[1], p.rotation[2]);
-    if (std::isfinite(q.norm()) && std::abs(q.norm() - 1.0) < 1e-3) {
-      Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-      T.linear() = q.normalized().toRotationMatrix();
-      T.translation() = Eigen::Vector3d(p.translation[0], p.translation[1], p.translation[2]);
-      frame->T_world_camera_gt = T;
+    const Eigen::Vector3d t(p.translation[0], p.translation[1], p.translation[2]);
+    if (!t.allFinite() || !std::isfinite(q.norm()) || std::abs(q.norm() - 1.0) > 1e-3) {
+      return core::fail(why, "ground-truth pose: translation must be finite and the quaternion unit length");
     }
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = q.normalized().toRotationMatrix();
+    T.translation() = t;
+    out->T_world_camera_gt = T;
   }
+  if (!accept_image(msg.colour, 3, 1, "colour", &out->colour, why) ||
+      !accept_image(msg.depth, 1, 2, "depth", &out->depth, why)) {
+    return false;
+  }
+  out->frame_id = msg.frame_id;
+  out->timestamp = msg.timestamp;
+  out->camera = camera;
+  out->depth_scale = msg.depth_scale;
   return true;
+}
+
+bool decode_frame(const EncodedFrame& in, core::RgbdFrame* frame, std::string* why) {
+  cv::Mat colour, depth_raw;
+  if (!decode_image(in.colour, CV_8UC3, "colour", &colour, why) ||
+      !decode_image(in.depth, CV_16UC1, "depth", &depth_raw, why)) {
+    return false;
+  }
+  cv::Mat depth;
+  depth_raw.convertTo(depth, CV_32FC1, 1.0 / in.depth_scale);
+  depth.setTo(0.0f, depth_raw == 65535);
+  frame->id = static_cast<std::int64_t>(in.frame_id);
+  frame->timestamp = in.timestamp;
+  frame->colour = colour;
+  frame->depth = depth;
+  frame->camera = in.camera;
+  frame->T_world_camera_gt = in.T_world_camera_gt;
+  return true;
+}
+
+bool decode_frame(const fslam_proto_Frame& msg, core::RgbdFrame* frame, std::string* why) {
+  EncodedFrame encoded;
+  return accept_frame(msg, &encoded, why) && decode_frame(encoded, frame, why);
 }
 
 }  // namespace fslam::server

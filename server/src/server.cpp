@@ -18,6 +18,7 @@
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/frame_codec.hpp"
 #include "fslam/server/map_files.hpp"
+#include "fslam/server/mapping_thread.hpp"
 #include "fslam/server/render_images.hpp"
 
 namespace fslam::server {
@@ -51,26 +52,27 @@ struct Server::MapEntry {
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
 };
 
-// One streaming session: its bounded queue and its two threads; the pipeline is its map's.
+struct Server::QueuedFrame {
+  EncodedFrame frame;
+  Clock::time_point queued;
+};
+
+// One streaming session: its waiting frames and its two threads; the pipeline is its map's.
 struct Server::Session {
   std::string name;
   std::shared_ptr<MapEntry> map;
+  bool live = true;  // frame policy: live (newest frame only) or queue
   std::mutex mutex;
   std::condition_variable wake;
-  std::deque<QueuedFrame> queue;
+  std::deque<QueuedFrame> queue;  // live: at most one
   bool closing = false;
-  std::thread tracking, mapping;
+  std::thread tracking;
+  std::unique_ptr<MappingThread> mapping;
   // Status counters (guarded by `mutex`).
-  std::uint64_t received = 0, processed = 0, dropped = 0;
-  std::string last_drop_reason;
+  std::uint64_t received = 0, processed = 0, dropped = 0, skipped = 0;
+  std::string last_drop_reason, last_skip_reason;
   // The latest stage times, for p50 / p99 (each bounded to kTimingWindow entries).
-  std::deque<double> decode_ms, track_ms, map_ms;
-};
-
-struct Server::QueuedFrame {
-  core::RgbdFrame frame;
-  float decode_ms = 0.0f;
-  Clock::time_point queued;
+  std::deque<double> decode_ms, queue_ms, track_ms, map_ms;
 };
 
 // An owned copy of a fslam/requests sample.
@@ -179,10 +181,14 @@ void describe_view(const core::RenderView& view, const Eigen::Isometry3d& T_worl
 
 bool ServerConfig::is_valid(std::string* why) const {
   if (prefix.empty()) return core::fail(why, "server: empty topic prefix");
+  if (frame_policy != "live" && frame_policy != "queue") {
+    return core::fail(why, "server: frame_policy must be live or queue, not '" + frame_policy + "'");
+  }
   if (queue_capacity == 0) return core::fail(why, "server: queue_capacity must be > 0");
   if (status_period_ms <= 0) return core::fail(why, "server: status_period_ms must be > 0");
   if (query_threads < 1) return core::fail(why, "server: query_threads must be >= 1");
   if (query_queue_capacity == 0) return core::fail(why, "server: query_queue_capacity must be > 0");
+  if (mapping_threads < 0) return core::fail(why, "server: mapping_threads must be >= 0");
   if (max_render_pixels == 0) return core::fail(why, "server: max_render_pixels must be > 0");
   if (!grounding().is_valid(why)) return false;
   return pipeline.is_valid(why);
@@ -373,19 +379,24 @@ void Server::publish_status() {
   };
   for (const auto& [name, s] : sessions_) {
     fslam_proto_SessionStatus st{};
-    std::string session = s->name, map = s->map->name, reason;
+    std::string session = s->name, map = s->map->name, reason, skip_reason;
+    std::string policy = s->live ? "live" : "queue";
     {
       std::lock_guard<std::mutex> qlock(s->mutex);
       st.queue_depth = static_cast<std::uint32_t>(s->queue.size());
       st.frames_received = s->received;
       st.frames_processed = s->processed;
       st.frames_dropped = s->dropped;
+      st.frames_skipped = s->skipped;
       reason = s->last_drop_reason;
+      skip_reason = s->last_skip_reason;
       auto p = [](const std::deque<double>& w, double q) {
         return static_cast<float>(quantile(std::vector<double>(w.begin(), w.end()), q));
       };
       st.decode_ms_p50 = p(s->decode_ms, 0.5);
       st.decode_ms_p99 = p(s->decode_ms, 0.99);
+      st.queue_ms_p50 = p(s->queue_ms, 0.5);
+      st.queue_ms_p99 = p(s->queue_ms, 0.99);
       st.track_ms_p50 = p(s->track_ms, 0.5);
       st.track_ms_p99 = p(s->track_ms, 0.99);
       st.map_ms_p50 = p(s->map_ms, 0.5);
@@ -394,6 +405,8 @@ void Server::publish_status() {
     st.session = session.data();
     st.map_name = map.data();
     st.last_drop_reason = reason.data();
+    st.last_skip_reason = skip_reason.data();
+    st.frame_policy = policy.data();
     describe_map(*s->map, &st);
     dds_write(status_writer_.get(), &st);
   }
@@ -403,6 +416,8 @@ void Server::publish_status() {
     st.session = empty.data();
     st.map_name = name.data();
     st.last_drop_reason = empty.data();
+    st.last_skip_reason = empty.data();
+    st.frame_policy = empty.data();
     describe_map(*map, &st);
     dds_write(status_writer_.get(), &st);
   }
@@ -419,6 +434,19 @@ void Server::publish_result(const char* client, std::uint64_t request_id, const 
   r.error = e.data();
   r.path = empty.data();
   dds_write(result_writer_.get(), &r);
+}
+
+void Server::publish_skip(const std::string& session, std::uint64_t frame_id, double timestamp,
+                          const std::string& reason) {
+  fslam_proto_PoseStamped pose{};
+  std::string name = session, note = reason;
+  pose.session = name.data();
+  pose.frame_id = frame_id;
+  pose.timestamp = timestamp;
+  pose.T_world_camera.rotation[3] = 1.0;
+  pose.state = fslam_proto_TRACKING_SKIPPED;
+  pose.note = note.data();
+  dds_write(pose_writer_.get(), &pose);
 }
 
 void Server::handle_control(const fslam_proto_SessionControl& msg) {
@@ -464,20 +492,21 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       auto s = std::make_unique<Session>();
       s->name = name;
       s->map = map;
+      s->live = msg.policy == fslam_proto_POLICY_LIVE ||
+                (msg.policy != fslam_proto_POLICY_QUEUE && config_.frame_policy == "live");
       Session* raw = s.get();
       s->tracking = std::thread([this, raw] { run_tracking(raw); });
-      s->mapping = std::thread([this, raw] {
-        std::string mwhy;
-        auto on_keyframe = [raw](const core::KeyframeReport& report) {
-          const core::RefinementStats& r = report.refinement;
-          std::lock_guard<std::mutex> lock(raw->mutex);
-          record(&raw->map_ms, r.insert_ms + r.optimise_ms + r.prune_ms);
-        };
-        if (!raw->map->pipeline->run_mapping(on_keyframe, &mwhy)) {
-          // Tracking goes on; clients learn that the map stopped growing, and why.
-          publish_result(raw->name.c_str(), 0, raw->map->name, "mapping failed: " + mwhy);
-        }
-      });
+      s->mapping = std::make_unique<MappingThread>(
+          raw->map->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
+          [raw](const core::KeyframeReport& report) {
+            const core::RefinementStats& r = report.refinement;
+            std::lock_guard<std::mutex> lock(raw->mutex);
+            record(&raw->map_ms, r.insert_ms + r.optimise_ms + r.prune_ms);
+          },
+          [this, raw](const std::string& mwhy) {
+            // Tracking goes on; clients learn that the map stopped growing, and why.
+            publish_result(raw->name.c_str(), 0, raw->map->name, "mapping failed: " + mwhy);
+          });
       maps_[map_name] = map;
       sessions_[name] = std::move(s);
     } else {
@@ -511,24 +540,23 @@ void Server::finish_session(Session* s) {
   s->wake.notify_all();
   if (s->tracking.joinable()) s->tracking.join();  // every accepted frame is tracked
   s->map->pipeline->finish();
-  if (s->mapping.joinable()) s->mapping.join();
+  if (s->mapping) s->mapping->join();
   std::lock_guard<std::mutex> lock(s->map->mutex);
   s->map->streaming = false;
 }
 
 void Server::handle_frame(const fslam_proto_Frame& msg) {
   const std::string name = text(msg.session);
-  // Decoding (PNG/JPEG) is the costly part: done before taking the server's lock.
+  // Cheap checks and a copy of the payloads; decoding waits for the tracking thread, so that a
+  // frame the live policy skips costs nothing more.
   QueuedFrame queued;
-  std::string decode_why, why;
-  const Clock::time_point t0 = Clock::now();
-  const bool decoded = decode_frame(msg, &queued.frame, &decode_why);
-  queued.decode_ms = static_cast<float>(ms_since(t0));
+  std::string accept_why, why;
+  const bool accepted = accept_frame(msg, &queued.frame, &accept_why);
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.frames_received;
   const auto it = sessions_.find(name);
   if (it == sessions_.end()) why = "unknown session '" + name + "' (open it first)";
-  else if (!decoded) why = decode_why;
+  else if (!accepted) why = accept_why;
   if (!why.empty()) {
     ++stats_.frames_rejected;
     const std::string message = "frame " + std::to_string(msg.frame_id) + ": " + why;
@@ -545,7 +573,18 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
   {
     std::lock_guard<std::mutex> qlock(s.mutex);
     ++s.received;
-    if (s.queue.size() >= config_.queue_capacity) {
+    if (s.live) {
+      // Live: the tracker takes the newest frame; one still waiting is skipped, and said so.
+      while (!s.queue.empty()) {
+        const EncodedFrame& old = s.queue.front().frame;
+        ++stats_.frames_skipped;
+        ++s.skipped;
+        s.last_skip_reason = "frame " + std::to_string(old.frame_id) + " skipped: frame " +
+                             std::to_string(msg.frame_id) + " arrived while tracking was busy (live policy)";
+        publish_skip(s.name, old.frame_id, old.timestamp, s.last_skip_reason);
+        s.queue.pop_front();
+      }
+    } else if (s.queue.size() >= config_.queue_capacity) {
       ++stats_.frames_dropped;
       ++s.dropped;
       s.last_drop_reason = "frame " + std::to_string(msg.frame_id) + " dropped: queue full (" +
@@ -554,7 +593,6 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
       return;
     }
     queued.queued = Clock::now();
-    record(&s.decode_ms, queued.decode_ms);
     s.queue.push_back(std::move(queued));
   }
   s.wake.notify_one();
@@ -572,18 +610,33 @@ void Server::run_tracking(Session* s) {
       queued = std::move(s->queue.front());
       s->queue.pop_front();
     }
-    const core::RgbdFrame& frame = queued.frame;
     const double queue_ms = ms_since(queued.queued);
+    std::string why;
+    core::RgbdFrame frame;
+    const Clock::time_point t_decode = Clock::now();
+    const bool decoded = decode_frame(queued.frame, &frame, &why);
+    const double decode_ms = ms_since(t_decode);
+    if (!decoded) {
+      {
+        std::lock_guard<std::mutex> lock(s->mutex);
+        ++s->dropped;
+        s->last_drop_reason = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
+      }
+      publish_result(s->name.c_str(), queued.frame.frame_id, s->map->name,
+                     "frame " + std::to_string(queued.frame.frame_id) + ": " + why);
+      continue;
+    }
     if (first && frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
     first = false;
     core::TrackingResult result;
-    std::string why;
     const Clock::time_point t0 = Clock::now();
     const bool tracked = pipeline.process_frame(frame, &result, &why);
     const double track_ms = ms_since(t0);
     {
       std::lock_guard<std::mutex> lock(s->mutex);
       ++s->processed;
+      record(&s->decode_ms, decode_ms);
+      record(&s->queue_ms, queue_ms);
       record(&s->track_ms, track_ms);
     }
     if (!tracked) {
@@ -607,9 +660,11 @@ void Server::run_tracking(Session* s) {
     to_wire(result.T_world_camera, &pose.T_world_camera);
     pose.state = static_cast<fslam_proto_TrackingState>(static_cast<int>(result.state));
     pose.keyframe = result.keyframe;
-    pose.decode_ms = queued.decode_ms;
+    pose.decode_ms = static_cast<float>(decode_ms);
     pose.queue_ms = static_cast<float>(queue_ms);
     pose.track_ms = static_cast<float>(track_ms);
+    std::string note = result.message;
+    pose.note = note.data();
     dds_write(pose_writer_.get(), &pose);
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.poses_published;

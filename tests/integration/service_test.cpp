@@ -15,6 +15,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "cli_runner.hpp"
 #include "fslam/client/client.hpp"
@@ -31,6 +32,13 @@ using test::stop_process;
 double ate_from(const std::string& out) {
   const auto at = out.find("ATE RMSE ");
   return at == std::string::npos ? -1.0 : std::stod(out.substr(at + 9));
+}
+
+// The JSON summary `fslam stream --report FILE` wrote.
+nlohmann::json stream_report(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return nlohmann::json::object();
+  return nlohmann::json::parse(in);
 }
 
 client::ClientOptions options_for(const std::string& prefix) {
@@ -92,13 +100,15 @@ pid_t Service::server_pid_ = -1;
 // One client streams 100 frames and receives 100 poses, as accurate as the in-process tracker.
 TEST_F(Service, StreamReceivesEveryPoseWithInProcessAccuracy) {
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --prefix " + prefix_ +
-                            " --session a --out " + dir_ + "/streamed.txt",
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --prefix " + prefix_ +
+                            " --session a --out " + dir_ + "/streamed.txt --report " + dir_ + "/a.json",
                         &out, &err),
             0)
       << out << err;
-  EXPECT_NE(out.find("poses received 100"), std::string::npos) << out;
-  const double streamed = ate_from(out);
+  const nlohmann::json report = stream_report(dir_ + "/a.json");
+  EXPECT_EQ(report.value("tracked", 0), 100) << out;
+  EXPECT_EQ(report.value("skipped", -1), 0) << out;
+  const double streamed = report["ate"].value("rmse_m", -1.0);
   ASSERT_EQ(run_command(fslam_bin() + " track --dataset " + dir_ + "/seq --out " + dir_ + "/t.txt",
                         &out, &err),
             0)
@@ -108,6 +118,25 @@ TEST_F(Service, StreamReceivesEveryPoseWithInProcessAccuracy) {
   ASSERT_GT(in_process, 0.0);
   EXPECT_LT(streamed, 1.5 * in_process + 1e-4) << "streamed " << streamed << " m, in process "
                                                << in_process << " m";
+}
+
+// A live session fed faster than it tracks skips to the newest frame: every frame gets an
+// outcome (tracked or skipped, none lost or in error) and skips are reported as such (the latency
+// this buys is measured by tests/benchmarks/service_bench.sh, not asserted here).
+TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy live --rate max --dataset " + dir_ +
+                            "/seq --prefix " + prefix_ + " --session live --report " + dir_ + "/live.json",
+                        &out, &err),
+            0)
+      << out << err;
+  const nlohmann::json r = stream_report(dir_ + "/live.json");
+  const int tracked = r.value("tracked", 0), skipped = r.value("skipped", 0);
+  EXPECT_EQ(tracked + skipped, 100) << out;
+  EXPECT_EQ(r.value("errors", -1), 0) << out;
+  EXPECT_EQ(r.value("no_answer", -1), 0) << out;
+  EXPECT_GT(skipped, 0) << "frames pushed as fast as the client can encode must outrun tracking: " << out;
+  EXPECT_GE(tracked, 10) << out;
 }
 
 // The server states every setting it runs with before it serves.
@@ -196,9 +225,9 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
   auto stream = [&](const std::string& session, const std::string& frames) {
     return std::async(std::launch::async, [=] {
       std::string out, err;
-      const int rc = run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --frames " + frames +
+      const int rc = run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames " + frames +
                                      " --prefix " + prefix_ + " --session " + session + " --map map-" +
-                                     session + " --rate 15",
+                                     session + " --rate 15 --report " + dir_ + "/" + session + ".json",
                                  &out, &err);
       return std::make_pair(rc, out + err);
     });
@@ -225,8 +254,8 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
   const auto [rc2, log2] = second.get();
   ASSERT_EQ(rc1, 0) << log1;
   ASSERT_EQ(rc2, 0) << log2;
-  EXPECT_NE(log1.find("poses received 40"), std::string::npos) << log1;
-  EXPECT_NE(log2.find("poses received 40"), std::string::npos) << log2;
+  EXPECT_EQ(stream_report(dir_ + "/one.json").value("tracked", 0), 40) << log1;
+  EXPECT_EQ(stream_report(dir_ + "/two.json").value("tracked", 0), 40) << log2;
   EXPECT_GE(renders_while_streaming, 2) << "renders must be served while maps are being built";
 
   // After the streams: each map rendered from one of its tracked frames reproduces that frame's
@@ -274,7 +303,7 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
 // accepted stay in the map.
 TEST_F(Service, KilledClientLeavesTheServerServing) {
   const std::string pid_file = dir_ + "/killed.pid";
-  std::system((fslam_bin() + " stream --dataset " + dir_ + "/seq --prefix " + prefix_ +
+  std::system((fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --prefix " + prefix_ +
                " --session doomed --map doomed --rate 20 >" + dir_ + "/killed.log 2>&1 & echo $! >" +
                pid_file)
                   .c_str());
@@ -300,12 +329,12 @@ TEST_F(Service, KilledClientLeavesTheServerServing) {
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
   ASSERT_EQ(kill(server_pid_, 0), 0) << "the server died with its client";
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --frames 0:20 --prefix " +
-                            prefix_ + " --session survivor --map survivor",
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames 0:20 --prefix " +
+                            prefix_ + " --session survivor --map survivor --report " + dir_ + "/survivor.json",
                         &out, &err),
             0)
       << out << err;
-  EXPECT_NE(out.find("poses received 20"), std::string::npos) << out;
+  EXPECT_EQ(stream_report(dir_ + "/survivor.json").value("tracked", 0), 20) << out;
   client::RenderQuery q;
   q.map_name = "doomed";
   q.from_frame = true;
@@ -330,7 +359,7 @@ TEST_F(Service, MalformedRequestsGetErrorResults) {
   EXPECT_NE(why.find("no map named"), std::string::npos) << why;
   // A map to aim at: ten frames.
   std::string out_text, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir_ + "/seq --frames 0:10 --prefix " +
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames 0:10 --prefix " +
                             prefix_ + " --session target --map target",
                         &out_text, &err),
             0)
@@ -369,7 +398,7 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   const std::string server_args = "--prefix " + prefix + " --map-dir " + dir + "/maps";
   auto server = std::make_unique<test::ScopedServer>(server_args, dir + "/server1.log");
   ASSERT_GT(server->pid(), 0);
-  ASSERT_EQ(run_command(fslam_bin() + " stream --dataset " + dir + "/seq --prefix " + prefix +
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir + "/seq --prefix " + prefix +
                             " --session s --map kept",
                         &out, &err),
             0)

@@ -51,8 +51,19 @@ struct PoseUpdate {
   double translation[3] = {0, 0, 0};  // camera-to-world, metres
   double rotation[4] = {0, 0, 0, 1};  // qx qy qz qw
   int state = 0;                      // fslam_proto_TrackingState
+  bool skipped = false;               // TRACKING_SKIPPED: accepted, never tracked; not a pose
   bool keyframe = false;
   float decode_ms = 0, queue_ms = 0, track_ms = 0;  // the server's time on this frame
+  std::string note;                   // why it was skipped, lost or recovered
+};
+
+// What a session does with frames that arrive while the server's tracker is busy
+// (docs/protocol.md): the server's setting, live (track the newest, skip and report older ones)
+// or queue (track every frame from a bounded queue; overflow drops with an error).
+enum class FramePolicy { server_default, live, queue };
+
+struct SessionOptions {
+  FramePolicy policy = FramePolicy::server_default;
 };
 
 // A server's answer to a request or session control, or its report of a rejected or dropped
@@ -69,7 +80,9 @@ struct ResultUpdate {
 struct StatusUpdate {
   std::string session, map_name, last_drop_reason;
   std::uint32_t queue_depth = 0;
-  std::uint64_t frames_received = 0, frames_processed = 0, frames_dropped = 0;
+  std::uint64_t frames_received = 0, frames_processed = 0, frames_dropped = 0, frames_skipped = 0;
+  std::string last_skip_reason, frame_policy;  // frame_policy: "live" or "queue"
+  float queue_ms_p50 = 0, queue_ms_p99 = 0;    // per frame: accepted -> tracking starts
   std::uint64_t map_gaussians = 0, resident_bytes = 0;
   float decode_ms_p50 = 0, decode_ms_p99 = 0;  // per frame
   float track_ms_p50 = 0, track_ms_p99 = 0;    // per frame
@@ -155,7 +168,7 @@ class Client {
   // Opens (creates or attaches to `map_name`) or closes a streaming session and waits up to
   // timeout_ms for the server's answer. False with `why` on an error result or no answer.
   bool open_session(const std::string& session, const std::string& map_name, int timeout_ms,
-                    std::string* why);
+                    std::string* why, const SessionOptions& options = {});
   bool close_session(const std::string& session, int timeout_ms, std::string* why);
   // Query-only use: succeeds when a map of that name is served.
   bool attach_map(const std::string& map_name, int timeout_ms, std::string* why);
@@ -188,7 +201,7 @@ class Client {
   struct Answer;
   void listen();
   bool control(const std::string& session, const std::string& map_name, bool open, bool attach_only,
-               int timeout_ms, std::string* why);
+               FramePolicy policy, int timeout_ms, std::string* why);
   // Sends `sample` with `writer` once a server matched, and waits for the result (client, id).
   bool call(dds_entity_t writer, const void* sample, const std::string& client, std::uint64_t id,
             const std::string& what, int timeout_ms, Answer* answer, std::string* why);

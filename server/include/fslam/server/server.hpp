@@ -1,8 +1,9 @@
 // The featureslam server: a component with an explicit lifecycle (configure -> activate ->
 // deactivate -> cleanup) that owns maps and the SLAM sessions streaming into them, and talks DDS
-// (docs/protocol.md). Each session runs tracking and mapping on their own threads, fed by a
-// bounded frame queue; a full queue drops the newest frame and says so in an error result —
-// nothing accepted is lost silently. Render, segment, save and load requests run on query threads
+// (docs/protocol.md). Each session runs tracking and mapping on their own threads. Its frames
+// follow its frame policy: live (the default) tracks the newest frame and skips older waiting
+// ones, reporting each skip on the pose stream; queue tracks every frame from a bounded queue
+// whose overflow drops the newest with an error result. Nothing accepted is lost silently. Render, segment, save and load requests run on query threads
 // against the newest map version, so any number of clients can query any map while it is being
 // built.
 #pragma once
@@ -22,6 +23,7 @@
 #include "fslam/client/dds.hpp"
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "fslam/proto/types.h"
+#include "fslam/server/frame_codec.hpp"
 #include "fslam/server/grounding.hpp"
 
 namespace fslam::server {
@@ -35,7 +37,10 @@ inline core::PipelineConfig realtime_pipeline() {
 struct ServerConfig {
   std::string prefix = "fslam";                 // topic prefix of this deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
-  std::size_t queue_capacity = 64;              // frames waiting per session
+  // Frame policy of sessions that do not choose one: "live" or "queue" (docs/protocol.md).
+  std::string frame_policy = "live";
+  std::size_t queue_capacity = 64;              // frames waiting per queue-policy session
+  int mapping_threads = 0;                      // TBB threads of each session's mapping; 0 = all cores
   int status_period_ms = 1000;                  // fslam/status, per session and idle map
   // Persistence: maps live in <map_dir>/<name>/ (map_files.hpp). Empty: nothing is saved or
   // loaded, and save / load requests are refused.
@@ -60,7 +65,8 @@ struct ServerConfig {
 };
 
 struct ServerStats {
-  std::uint64_t frames_received = 0, frames_rejected = 0, frames_dropped = 0, poses_published = 0;
+  std::uint64_t frames_received = 0, frames_rejected = 0, frames_dropped = 0, frames_skipped = 0;
+  std::uint64_t poses_published = 0;
   std::uint64_t requests_answered = 0, requests_failed = 0;
   std::size_t sessions = 0, maps = 0;
 };
@@ -108,6 +114,9 @@ class Server {
   std::shared_ptr<MapEntry> find_map(const std::string& name) const;
   void publish_result(const char* client, std::uint64_t request_id, const std::string& map_name,
                       const std::string& error);
+  // A frame accepted and then not tracked under the live policy, on the pose stream.
+  void publish_skip(const std::string& session, std::uint64_t frame_id, double timestamp,
+                    const std::string& reason);
   void run_tracking(Session* session);
   void publish_status();
   void finish_session(Session* session);
