@@ -5,11 +5,11 @@
 
 #include <CLI/CLI.hpp>
 
-#include "fslam/core/compute/cpu_level.hpp"
+#include "fslam/server/process_setup.hpp"
 #include "fslam/server/serve_options.hpp"
 
 int main(int argc, char** argv) {
-  if (std::string why; !fslam::core::cpu_runs_this_build(&why)) {
+  if (std::string why; !fslam::server::prepare_process(&why)) {
     std::fprintf(stderr, "fslam-server: %s\n", why.c_str());
     return 1;
   }

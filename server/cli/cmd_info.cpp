@@ -26,8 +26,7 @@ double path_length(const core::Trajectory& trajectory) {
 int run_info(const DatasetArgs& args) {
   core::DatasetOptions options;
   std::string why;
-  if (!args.to_options(&options, &why)) return fail(why);
-  const std::unique_ptr<core::Dataset> dataset = core::open_dataset(args.path, options, &why);
+  const std::unique_ptr<core::Dataset> dataset = open_dataset(args, &options, &why);
   if (!dataset) return fail(why);
 
   const core::PinholeCamera& c = dataset->camera();

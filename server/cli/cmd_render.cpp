@@ -120,8 +120,7 @@ int run_render(const RenderArgs& args) {
   if (!args.map.empty()) return render_from_server(args, bits);
   if (args.dataset.path.empty()) return fail("--ply needs --dataset (for the camera)");
   core::DatasetOptions options;
-  if (!args.dataset.to_options(&options, &why)) return fail(why);
-  auto dataset = core::open_dataset(args.dataset.path, options, &why);
+  auto dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
   Eigen::Isometry3d T_world_camera;
   if (!args.pose.empty()) {

@@ -107,8 +107,7 @@ struct EvalSet {
 int run_slam(const RunArgs& args) {
   core::DatasetOptions options;
   std::string why;
-  if (!args.dataset.to_options(&options, &why)) return fail(why);
-  const std::unique_ptr<core::Dataset> dataset = core::open_dataset(args.dataset.path, options, &why);
+  const std::unique_ptr<core::Dataset> dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
   if (args.threads < 1) return fail("--threads must be >= 1");
   if (args.realtime_fps < 0.0) return fail("--realtime must be > 0 frames per second");
@@ -403,8 +402,8 @@ void add_run_command(CLI::App& root, CommandList* commands) {
       "run", "Track and map a dataset (3DGS mapping on a second thread); writes the trajectory, "
              "map.ply, metrics.json and renders");
   auto args = std::make_shared<RunArgs>();
-  add_dataset_options(app, &args->dataset);
   server::add_config_options(app, &args->config);
+  add_dataset_options(app, &args->dataset, true, &args->config);
   app->add_option("--out", args->out, "Output folder")->required();
   app->add_option("--refine", args->refine, "Post-trajectory refinement steps (0 = off)")
       ->capture_default_str();

@@ -56,8 +56,7 @@ cv::Vec3b id_colour(int id) {
 int run_segment_eval(const SegmentEvalArgs& args) {
   std::string why;
   core::DatasetOptions options;
-  if (!args.dataset.to_options(&options, &why)) return fail(why);
-  auto dataset = core::open_dataset(args.dataset.path, options, &why);
+  auto dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
   core::GaussianMap map;
   if (!core::read_gaussian_ply(args.ply, &map, &why)) return fail(why);

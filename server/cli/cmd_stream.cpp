@@ -100,8 +100,7 @@ nlohmann::json latency_json(const Latency& l) {
 int run_stream(const StreamArgs& args) {
   core::DatasetOptions options;
   std::string why;
-  if (!args.dataset.to_options(&options, &why)) return fail(why);
-  auto dataset = core::open_dataset(args.dataset.path, options, &why);
+  auto dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
   double rate = 0.0;
   if (args.rate != "max") {

@@ -44,8 +44,7 @@ struct StageStats {
 int run_track(const TrackArgs& args) {
   core::DatasetOptions options;
   std::string why;
-  if (!args.dataset.to_options(&options, &why)) return fail(why);
-  const std::unique_ptr<core::Dataset> dataset = core::open_dataset(args.dataset.path, options, &why);
+  const std::unique_ptr<core::Dataset> dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
   if (args.threads < 1) return fail("--threads must be >= 1");
 
@@ -151,8 +150,8 @@ void add_track_command(CLI::App& root, CommandList* commands) {
       "track", "Track a dataset with feature-guided GICP against a local map (no mapping); "
                "prints timings and ATE when ground truth exists");
   auto args = std::make_shared<TrackArgs>();
-  add_dataset_options(app, &args->dataset);
   server::add_config_options(app, &args->config);
+  add_dataset_options(app, &args->dataset, true, &args->config);
   app->add_option("--out", args->out, "Trajectory to write (TUM format, camera-to-world)")
       ->required();
   app->add_option("--threads", args->threads,

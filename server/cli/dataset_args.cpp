@@ -1,5 +1,7 @@
 #include "dataset_args.hpp"
 
+#include <cstdio>
+
 #include <CLI/CLI.hpp>
 
 namespace fslam::cli {
@@ -7,6 +9,11 @@ namespace fslam::cli {
 bool DatasetArgs::to_options(core::DatasetOptions* options, std::string* why) const {
   core::DatasetOptions result;
   result.kind = kind;
+  server::ServerConfig layered;
+  if (!(config != nullptr ? config : &own_config)->apply(&layered, why)) return false;
+  const std::string& intrinsics = this->intrinsics.empty() ? layered.dataset.intrinsics : this->intrinsics;
+  const std::string& colour_camera =
+      this->colour_camera.empty() ? layered.dataset.colour_camera : this->colour_camera;
   if (!frames.empty() && !core::FrameSelection::parse(frames, &result.frames, why)) {
     if (why) *why = "--frames: " + *why;
     return false;
@@ -14,7 +21,7 @@ bool DatasetArgs::to_options(core::DatasetOptions* options, std::string* why) co
   if (!intrinsics.empty()) {
     core::PinholeCamera camera;
     if (!core::parse_intrinsics(intrinsics, &camera, why)) {
-      if (why) *why = "--intrinsics: " + *why;
+      if (why) *why = "--intrinsics / dataset.intrinsics: " + *why;
       return false;
     }
     result.intrinsics = camera;
@@ -22,7 +29,7 @@ bool DatasetArgs::to_options(core::DatasetOptions* options, std::string* why) co
   if (!colour_camera.empty()) {
     core::ColourCamera colour;
     if (!core::ColourCamera::parse(colour_camera, &colour, why)) {
-      if (why) *why = "--colour-camera: " + *why;
+      if (why) *why = "--colour-camera / dataset.colour_camera: " + *why;
       return false;
     }
     result.colour_camera = colour;
@@ -31,7 +38,10 @@ bool DatasetArgs::to_options(core::DatasetOptions* options, std::string* why) co
   return true;
 }
 
-void add_dataset_options(CLI::App* app, DatasetArgs* args, bool required) {
+void add_dataset_options(CLI::App* app, DatasetArgs* args, bool required,
+                         const server::ConfigOptions* config) {
+  args->config = config;
+  if (config == nullptr) server::add_config_options(app, &args->own_config);
   auto* dataset =
       app->add_option("--dataset", args->path,
                       "Sequence folder (TUM RGB-D, 7-Scenes or Replica; docs/datasets.md)");
@@ -50,6 +60,21 @@ void add_dataset_options(CLI::App* app, DatasetArgs* args, bool required) {
                   "Colour not registered to depth: the colour sensor as fx,fy,cx,cy,tx,ty,tz "
                   "(pixels; metres from the depth camera); colour is resampled onto the depth "
                   "pixels (fslam calibrate-colour estimates it; docs/datasets.md)");
+}
+
+std::unique_ptr<core::Dataset> open_dataset(const DatasetArgs& args, core::DatasetOptions* options,
+                                            std::string* why) {
+  if (!args.to_options(options, why)) return nullptr;
+  std::unique_ptr<core::Dataset> dataset = core::open_dataset(args.path, *options, why);
+  if (dataset && dataset->kind() == "7scenes" && !options->colour_camera) {
+    std::fprintf(stderr,
+                 "warning: %s is a 7-Scenes recording, whose colour is not registered to depth "
+                 "(colour lands 10-20 px off at depth edges); give its colour camera with "
+                 "--config configs/presets/seven_scenes.yaml (redkitchen's) or --colour-camera, "
+                 "estimated by `fslam calibrate-colour --dataset %s` (docs/datasets.md)\n",
+                 args.path.c_str(), args.path.c_str());
+  }
+  return dataset;
 }
 
 }  // namespace fslam::cli

@@ -7,10 +7,10 @@
 
 #include "commands.hpp"
 #include "fslam/core/build_config.hpp"
-#include "fslam/core/compute/cpu_level.hpp"
+#include "fslam/server/process_setup.hpp"
 
 int main(int argc, char** argv) {
-  if (std::string why; !fslam::core::cpu_runs_this_build(&why)) return fslam::cli::fail(why);
+  if (std::string why; !fslam::server::prepare_process(&why)) return fslam::cli::fail(why);
   CLI::App app{"featureslam " FSLAM_VERSION ": real-time feature-enriched 3DGS RGB-D SLAM"};
   app.require_subcommand(1);
   fslam::cli::CommandList commands;

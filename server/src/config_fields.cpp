@@ -331,6 +331,9 @@ void add_server_fields(std::vector<ConfigField>* f) {
   server.add("grounding_model", &ServerConfig::grounding_model);
   server.add("grounding_input_size", &ServerConfig::grounding_input_size);
   server.add("grounding_box_threshold", &ServerConfig::grounding_box_threshold);
+  const auto dataset = section(f, "dataset", [](auto& c) -> auto& { return c.dataset; });
+  dataset.add("intrinsics", &DatasetSettings::intrinsics);
+  dataset.add("colour_camera", &DatasetSettings::colour_camera);
 }
 
 // ---- lookup and messages ---------------------------------------------------------------------

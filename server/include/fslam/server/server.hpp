@@ -34,6 +34,14 @@ inline core::PipelineConfig realtime_pipeline() {
   return c;
 }
 
+// Settings of the commands that read recorded sequences (`dataset.*`; the server reads none):
+// what --intrinsics and --colour-camera give, so that a preset can carry them
+// (configs/presets/seven_scenes.yaml).
+struct DatasetSettings {
+  std::string intrinsics;     // fx,fy,cx,cy[,width,height]; empty: the dataset's own
+  std::string colour_camera;  // fx,fy,cx,cy,tx,ty,tz; empty: colour registered to depth
+};
+
 struct ServerConfig {
   std::string prefix = "fslam";                 // topic prefix of this deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
@@ -58,6 +66,7 @@ struct ServerConfig {
   // Real-time mapping by default: a live stream must not build a backlog of keyframes that
   // makes closing a session wait for it (core's default suits offline `fslam run`).
   core::PipelineConfig pipeline = realtime_pipeline();
+  DatasetSettings dataset;
   bool is_valid(std::string* why = nullptr) const;
   GroundingConfig grounding() const {
     return {grounding_model, grounding_input_size, grounding_box_threshold};

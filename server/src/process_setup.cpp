@@ -1,0 +1,16 @@
+#include "fslam/server/process_setup.hpp"
+
+#include <malloc.h>
+
+#include "fslam/core/compute/cpu_level.hpp"
+
+namespace fslam::server {
+
+bool prepare_process(std::string* why) {
+  if (!core::cpu_runs_this_build(why)) return false;
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's maximum on 64-bit
+  mallopt(M_TRIM_THRESHOLD, 256 << 20);
+  return true;
+}
+
+}  // namespace fslam::server
