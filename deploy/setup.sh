@@ -47,6 +47,7 @@ PACKAGES=(
   libeigen3-dev libopencv-dev libflann-dev libceres-dev
   cyclonedds-dev cyclonedds-tools libopenimageio-dev openimageio-tools
   libgtest-dev libgmock-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libtbb-dev
+  libpng-dev  # the client writes depth PNGs itself (client/src/depth_png.hpp)
   python3-onnx  # tests only: writes the tiny ONNX models of the onnx feature encoder's tests
 )
 

@@ -12,6 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "depth_png.hpp"
 #include "fslam/proto/types.h"
 
 namespace fslam::client {
@@ -463,7 +464,9 @@ bool Client::push_frame(const std::string& session, const FrameInput& frame, std
   std::vector<std::uint8_t> colour_bytes, depth_bytes;
   if (!encode(frame.colour_encoding == PayloadEncoding::raw ? rgb : bgr, frame.colour_encoding,
               frame.jpeg_quality, &colour_bytes, why) ||
-      !encode(depth, frame.depth_encoding, 0, &depth_bytes, why)) {
+      !(frame.depth_encoding == PayloadEncoding::png
+            ? encode_depth_png(frame.depth, w, h, &depth_bytes, why)
+            : encode(depth, frame.depth_encoding, 0, &depth_bytes, why))) {
     return false;
   }
   fslam_proto_Frame msg{};

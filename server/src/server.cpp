@@ -12,6 +12,7 @@
 #include <vector>
 
 #include <opencv2/core/mat.hpp>
+#include <tbb/task_arena.h>
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/segmentation/segmentation.hpp"
@@ -57,6 +58,20 @@ struct Server::QueuedFrame {
   Clock::time_point queued;
 };
 
+// A decoded frame with its latent and source Gaussians (core::SlamPipeline::prepare_frame),
+// waiting for registration; the times so far go on its pose.
+struct Server::PreparedFrame {
+  core::PreparedFrame frame;
+  Clock::time_point ready;
+  double decode_ms = 0, queue_ms = 0, prepare_ms = 0;
+};
+
+namespace {
+// Frames prepared ahead of registration in a queue-policy session (each holds a decoded frame
+// and a feature pyramid, ~20 MB): the preparing thread waits rather than run further ahead.
+constexpr std::size_t kPreparedAhead = 2;
+}  // namespace
+
 // One streaming session: its waiting frames and its two threads; the pipeline is its map's.
 struct Server::Session {
   std::string name;
@@ -64,9 +79,11 @@ struct Server::Session {
   bool live = true;  // frame policy: live (newest frame only) or queue
   std::mutex mutex;
   std::condition_variable wake;
-  std::deque<QueuedFrame> queue;  // live: at most one
+  std::deque<QueuedFrame> queue;  // accepted, waiting to be prepared; live: at most one
+  std::deque<PreparedFrame> prepared;  // waiting to be registered; live: at most one
   bool closing = false;
-  std::thread tracking;
+  bool preparing_done = false;    // the preparing thread drained `queue` after closing
+  std::thread preparing, tracking;
   std::unique_ptr<MappingThread> mapping;
   // Status counters (guarded by `mutex`).
   std::uint64_t received = 0, processed = 0, dropped = 0, skipped = 0;
@@ -495,7 +512,8 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       s->live = msg.policy == fslam_proto_POLICY_LIVE ||
                 (msg.policy != fslam_proto_POLICY_QUEUE && config_.frame_policy == "live");
       Session* raw = s.get();
-      s->tracking = std::thread([this, raw] { run_tracking(raw); });
+      s->preparing = std::thread([this, raw] { run_on_one_thread([&] { prepare_frames(raw); }); });
+      s->tracking = std::thread([this, raw] { run_on_one_thread([&] { track_frames(raw); }); });
       s->mapping = std::make_unique<MappingThread>(
           raw->map->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
           [raw](const core::KeyframeReport& report) {
@@ -538,6 +556,7 @@ void Server::finish_session(Session* s) {
     s->closing = true;
   }
   s->wake.notify_all();
+  if (s->preparing.joinable()) s->preparing.join();
   if (s->tracking.joinable()) s->tracking.join();  // every accepted frame is tracked
   s->map->pipeline->finish();
   if (s->mapping) s->mapping->join();
@@ -595,72 +614,128 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
     queued.queued = Clock::now();
     s.queue.push_back(std::move(queued));
   }
-  s.wake.notify_one();
+  s.wake.notify_all();
 }
 
-void Server::run_tracking(Session* s) {
-  bool first = true;
+void Server::run_on_one_thread(const std::function<void()>& work) {
+  // A live camera's frame is prepared on one thread and registered on another, each in an arena
+  // of its own with no workers: the parallel loops inside decoding and the feature encoder
+  // (OpenCV runs on TBB) never wait for a TBB worker busy with, or niced by, mapping.
+  tbb::task_arena one_thread(1);
+  one_thread.execute(work);
+}
+
+void Server::prepare_frames(Session* s) {
   core::SlamPipeline& pipeline = *s->map->pipeline;
   for (;;) {
     QueuedFrame queued;
     {
       std::unique_lock<std::mutex> lock(s->mutex);
-      s->wake.wait(lock, [&] { return !s->queue.empty() || s->closing; });
-      if (s->queue.empty()) return;  // closing and drained
+      s->wake.wait(lock, [&] {
+        return (!s->queue.empty() && (s->live || s->prepared.size() < kPreparedAhead)) ||
+               (s->closing && s->queue.empty());
+      });
+      if (s->queue.empty()) {  // closing and drained
+        s->preparing_done = true;
+        s->wake.notify_all();
+        return;
+      }
       queued = std::move(s->queue.front());
       s->queue.pop_front();
     }
-    const double queue_ms = ms_since(queued.queued);
+    PreparedFrame prepared;
+    prepared.queue_ms = ms_since(queued.queued);
     std::string why;
     core::RgbdFrame frame;
     const Clock::time_point t_decode = Clock::now();
     const bool decoded = decode_frame(queued.frame, &frame, &why);
-    const double decode_ms = ms_since(t_decode);
-    if (!decoded) {
+    prepared.decode_ms = ms_since(t_decode);
+    const Clock::time_point t_prepare = Clock::now();
+    const bool ready = decoded && pipeline.prepare_frame(std::move(frame), &prepared.frame, &why);
+    prepared.prepare_ms = ms_since(t_prepare);
+    if (!ready) {
+      const std::string message = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
       {
         std::lock_guard<std::mutex> lock(s->mutex);
         ++s->dropped;
-        s->last_drop_reason = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
+        s->last_drop_reason = message;
       }
-      publish_result(s->name.c_str(), queued.frame.frame_id, s->map->name,
-                     "frame " + std::to_string(queued.frame.frame_id) + ": " + why);
+      publish_result(s->name.c_str(), queued.frame.frame_id, s->map->name, message);
       continue;
     }
+    prepared.ready = Clock::now();
+    {
+      std::lock_guard<std::mutex> lock(s->mutex);
+      if (s->live) {
+        // Live: registration takes the newest prepared frame; one still waiting is skipped.
+        while (!s->prepared.empty()) {
+          const core::RgbdFrame& old = s->prepared.front().frame.frame;
+          ++s->skipped;
+          s->last_skip_reason = "frame " + std::to_string(old.id) + " skipped: frame " +
+                                std::to_string(prepared.frame.frame.id) +
+                                " was ready while registration was busy (live policy)";
+          publish_skip(s->name, static_cast<std::uint64_t>(old.id), old.timestamp, s->last_skip_reason);
+          s->prepared.pop_front();
+        }
+      }
+      s->prepared.push_back(std::move(prepared));
+    }
+    s->wake.notify_all();
+  }
+}
+
+void Server::track_frames(Session* s) {
+  bool first = true;
+  core::SlamPipeline& pipeline = *s->map->pipeline;
+  for (;;) {
+    PreparedFrame prepared;
+    {
+      std::unique_lock<std::mutex> lock(s->mutex);
+      s->wake.wait(lock, [&] { return !s->prepared.empty() || s->preparing_done; });
+      if (s->prepared.empty()) return;  // closing, and everything prepared was registered
+      prepared = std::move(s->prepared.front());
+      s->prepared.pop_front();
+    }
+    s->wake.notify_all();  // a queue-policy preparer may be waiting for room
+    const double queue_ms = prepared.queue_ms + ms_since(prepared.ready);
+    const core::RgbdFrame& frame = prepared.frame.frame;
+    const std::uint64_t frame_id = static_cast<std::uint64_t>(frame.id);
+    const double timestamp = frame.timestamp;
+    const core::PinholeCamera camera = frame.camera;
     if (first && frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
     first = false;
     core::TrackingResult result;
+    std::string why;
     const Clock::time_point t0 = Clock::now();
-    const bool tracked = pipeline.process_frame(frame, &result, &why);
-    const double track_ms = ms_since(t0);
+    const bool tracked = pipeline.track_prepared(std::move(prepared.frame), &result, &why);
+    const double track_ms = prepared.prepare_ms + ms_since(t0);
     {
       std::lock_guard<std::mutex> lock(s->mutex);
       ++s->processed;
-      record(&s->decode_ms, decode_ms);
+      record(&s->decode_ms, prepared.decode_ms);
       record(&s->queue_ms, queue_ms);
       record(&s->track_ms, track_ms);
     }
     if (!tracked) {
-      std::string session = s->name;
-      publish_result(session.c_str(), static_cast<std::uint64_t>(frame.id), s->map->name, why);
+      publish_result(s->name.c_str(), frame_id, s->map->name, why);
       continue;
     }
     {
       std::lock_guard<std::mutex> lock(s->map->mutex);
       MapEntry& map = *s->map;
-      map.camera = frame.camera;
-      const auto frame_id = static_cast<std::uint64_t>(frame.id);
+      map.camera = camera;
       map.pose_index[frame_id] = map.poses.size();
-      map.poses.push_back({frame_id, frame.timestamp, result.T_world_camera});
+      map.poses.push_back({frame_id, timestamp, result.T_world_camera});
     }
     fslam_proto_PoseStamped pose{};
     std::string session = s->name;
     pose.session = session.data();
-    pose.frame_id = static_cast<std::uint64_t>(frame.id);
-    pose.timestamp = frame.timestamp;
+    pose.frame_id = frame_id;
+    pose.timestamp = timestamp;
     to_wire(result.T_world_camera, &pose.T_world_camera);
     pose.state = static_cast<fslam_proto_TrackingState>(static_cast<int>(result.state));
     pose.keyframe = result.keyframe;
-    pose.decode_ms = static_cast<float>(decode_ms);
+    pose.decode_ms = static_cast<float>(prepared.decode_ms);
     pose.queue_ms = static_cast<float>(queue_ms);
     pose.track_ms = static_cast<float>(track_ms);
     std::string note = result.message;

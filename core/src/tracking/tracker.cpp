@@ -92,18 +92,32 @@ bool Tracker::is_lost(const GicpResult& gicp) const {
          !is_finite(gicp.T_target_source);
 }
 
+bool Tracker::preprocess(const RgbdFrame& frame, const PlanarImage* latent, PreparedSource* out,
+                         std::string* why) const {
+  const double t0 = now_ms();
+  // Depth -> camera-frame Gaussian points (source set of eq. gicp_sets), with the frame's
+  // features at their pixels (f_s of eq. feat_dist).
+  if (!preprocess_frame(frame, config_.preprocess, &out->points, &out->stats, why)) return false;
+  if (latent != nullptr && !latent->empty()) sample_point_features(*latent, frame.camera, &out->points);
+  out->preprocess_ms = now_ms() - t0;
+  return true;
+}
+
 bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string* why,
                     const PlanarImage* latent) {
-  const double t0 = now_ms();
-  *result = TrackingResult{};
+  PreparedSource prepared;
+  return preprocess(frame, latent, &prepared, why) && track_prepared(frame, prepared, result, why, latent);
+}
 
-  // 1. Preprocess: depth -> camera-frame Gaussian points (source set of eq. gicp_sets).
-  GaussianPoints source;
-  if (!preprocess_frame(frame, config_.preprocess, &source, &result->preprocess, why))
-    return false;
-  if (latent != nullptr && !latent->empty()) sample_point_features(*latent, frame.camera, &source);
+bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepared,
+                             TrackingResult* result, std::string* why, const PlanarImage* latent) {
+  (void)why;  // registration has no bad-input case left: preprocess checked the frame
   const double t1 = now_ms();
-  result->timings.preprocess_ms = t1 - t0;
+  *result = TrackingResult{};
+  const GaussianPoints& source = prepared.points;
+  result->preprocess = prepared.stats;
+  result->timings.preprocess_ms = prepared.preprocess_ms;
+  const double t0 = t1 - prepared.preprocess_ms;  // totals include the preprocessing
 
   auto add_keyframe = [&](const Eigen::Isometry3d& T_world_camera) {
     // The keyframe's points are fused into the map (moving the points they re-observe), then

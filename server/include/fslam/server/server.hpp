@@ -100,6 +100,7 @@ class Server {
   struct MapEntry;
   struct Session;
   struct QueuedFrame;
+  struct PreparedFrame;
   struct Query;
   void ingest();
   void serve_queries();
@@ -126,7 +127,10 @@ class Server {
   // A frame accepted and then not tracked under the live policy, on the pose stream.
   void publish_skip(const std::string& session, std::uint64_t frame_id, double timestamp,
                     const std::string& reason);
-  void run_tracking(Session* session);
+  static void run_on_one_thread(const std::function<void()>& work);
+  // A session's two frame threads: decode + prepare (features, source Gaussians), then register.
+  void prepare_frames(Session* session);
+  void track_frames(Session* session);
   void publish_status();
   void finish_session(Session* session);
   void log(const std::string& message) const;

@@ -47,12 +47,24 @@ struct KeyframeReport {
   double features_ms = 0;       // encoder + autoencoder for the keyframe's latent target
 };
 
+// A frame made ready for registration: the source Gaussians with their features, the latent on
+// the tracker's lattice, and the encoder's pyramid (handed to the mapper if it becomes a
+// keyframe). Made by prepare_frame, consumed by track_prepared.
+struct PreparedFrame {
+  RgbdFrame frame;
+  PreparedSource source;
+  PlanarImage latent;                       // [D, h, w] on the tracker's lattice, or empty
+  std::shared_ptr<FeaturePyramid> pyramid;  // null without features
+  double features_ms = 0.0;                 // encoder + phi
+};
+
 class SlamPipeline {
  public:
   // features (optional): the keyframes' latent targets for the feature loss; its dim() must be
   // the mapper's feature_dim (run_mapping fails and says so otherwise).
   SlamPipeline(const PipelineConfig& config, std::shared_ptr<const Rasterizer> rasterizer,
                std::unique_ptr<LatentFeatures> features = nullptr);
+  ~SlamPipeline();
 
   // Tracker thread: the frame's latent (track_with_features) -> preprocess -> feature-guided
   // GICP (eq. feat_gicp) -> keyframe decision (eq. keyframe_crit) -> hand the keyframe to
@@ -61,6 +73,14 @@ class SlamPipeline {
   // evaluation with ground-truth poses, which separates map quality from tracking drift).
   bool process_frame(const RgbdFrame& frame, TrackingResult* result, std::string* why,
                      const Eigen::Isometry3d* mapping_pose = nullptr);
+  // process_frame in two steps, so that a live service prepares frame k+1 on one thread while
+  // frame k registers on another (the tracker's state is touched by track_prepared alone):
+  // the frame's latent and source Gaussians (encoder, phi, preprocessing) ...
+  bool prepare_frame(RgbdFrame frame, PreparedFrame* out, std::string* why);
+  // ... then feature-guided GICP, the keyframe decision and the hand-over to mapping. Calls of
+  // each step come one at a time, and track_prepared in frame order.
+  bool track_prepared(PreparedFrame&& prepared, TrackingResult* result, std::string* why,
+                      const Eigen::Isometry3d* mapping_pose = nullptr);
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera);
 
   // Mapping thread: runs until finish() was called and every queued keyframe is mapped. In real
@@ -92,13 +112,14 @@ class SlamPipeline {
   // tracker already encoded the frame (the mapper then only runs phi at its resolution).
   struct QueuedKeyframe {
     MapperKeyframe keyframe;
-    std::shared_ptr<const FeaturePyramid> pyramid;
+    std::shared_ptr<FeaturePyramid> pyramid;
   };
+  class PyramidPool;
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
-  // The tracking thread's own encoder (LatentFeatures is not thread-safe), made at the first
-  // frame when features_ is set and track_with_features is on, and the pyramid it fills.
+  // The preparing thread's own encoder (LatentFeatures is not thread-safe), made at the first
+  // frame when features_ is set and track_with_features is on.
   std::unique_ptr<LatentFeatures> tracking_features_;
-  std::shared_ptr<FeaturePyramid> tracking_pyramid_;
+  std::shared_ptr<PyramidPool> pyramids_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<QueuedKeyframe> queue_;

@@ -77,9 +77,27 @@ struct TrackingResult {
   std::string message;          // why a frame was lost or recovered, empty otherwise
 };
 
+// A frame's source set of eq. gicp_sets, ready to register: what Tracker::preprocess makes
+// without touching the tracker's state, so that one thread can prepare the next frame while
+// another registers this one.
+struct PreparedSource {
+  GaussianPoints points;      // camera frame, with the frame's features when a latent was given
+  PreprocessStats stats;
+  double preprocess_ms = 0.0;
+};
+
 class Tracker {
  public:
   explicit Tracker(const TrackerConfig& config);
+
+  // Step 1 of track(): depth -> camera-frame Gaussian points and their features. Const and
+  // thread-safe: reads only the configuration. False with `why` for bad input.
+  bool preprocess(const RgbdFrame& frame, const PlanarImage* latent, PreparedSource* out,
+                  std::string* why) const;
+  // Steps 2-4 of track() on a prepared frame: registration, loss handling, keyframe decision,
+  // local-map update. latent as track()'s (needed for keyframes' map features).
+  bool track_prepared(const RgbdFrame& frame, const PreparedSource& prepared,
+                      TrackingResult* result, std::string* why, const PlanarImage* latent = nullptr);
 
   // Tracks one frame. The first frame defines the world (its pose is T_world_camera_initial).
   // Returns false with `why` only for bad input; tracking failure is a result state, not an error.
