@@ -100,70 +100,94 @@ run_tests() {
   ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 900
 }
 
-# The main job, end to end over DDS: a server on the loopback profile, the synthetic room
-# streamed to it at 30 Hz, renders requested from poses of the trajectory, the map saved, and the
-# server stopped cleanly (it saves its maps on the way out).
+# The main job, end to end over DDS: a server on the loopback profile (features on), the
+# synthetic room streamed to it live at 30 Hz, renders requested from poses of the trajectory,
+# promptless and one-click segmentation, the map saved, and the server stopped cleanly (it
+# saves its maps on the way out). Ends with a summary of what it wrote and the figures.
+DEMO_SERVER_PID=""  # global: the EXIT trap runs after run_demo's locals are gone
+stop_demo_server() {
+  if [[ -n "$DEMO_SERVER_PID" ]]; then
+    kill -TERM "$DEMO_SERVER_PID" 2>/dev/null || true
+    wait "$DEMO_SERVER_PID" 2>/dev/null || true
+    DEMO_SERVER_PID=""
+  fi
+}
+
 run_demo() {
   local fslam="$BUILD_DIR/bin/fslam" server="$BUILD_DIR/bin/fslam-server"
-  local prefix="demo$$" server_pid=""
-  rm -rf "$OUT/maps" "$OUT/renders"
-  mkdir -p "$OUT/renders"
+  local prefix="demo$$" t0=$SECONDS
+  rm -rf "$OUT/maps" "$OUT/renders" "$OUT/segmentation"
+  mkdir -p "$OUT/renders" "$OUT/segmentation"
   log "main job: built-in synthetic room through the service -> $OUT"
   "$fslam" version
-  "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
+  [[ -d "$OUT/sequence" ]] || "$fslam" synth --out "$OUT/sequence" --frames 300 --seed 1
   "$fslam" info --dataset "$OUT/sequence"
   # Feature autoencoder weights for the builtin encoder, pretrained on other synthetic rooms
   # (made once, then reused).
   local weights="$ROOT/out/autoencoder/builtin.fae"
   if [[ ! -f "$weights" ]]; then
-    log "feature autoencoder weights (deploy/make_builtin_autoencoder.sh, about a minute)"
+    log "feature autoencoder weights (deploy/make_builtin_autoencoder.sh, about a minute and a half)"
     bash "$ROOT/deploy/make_builtin_autoencoder.sh" --out "$weights" --fslam "$fslam"
   fi
 
   log "server (prefix $prefix, maps in $OUT/maps, features on, log $OUT/server.log)"
   "$server" --prefix "$prefix" --map-dir "$OUT/maps" --set "features.autoencoder_path=$weights" \
     >"$OUT/server.log" 2>&1 &
-  server_pid=$!
-  # The server is ours: stop it whatever happens below.
-  trap '[[ -n "$server_pid" ]] && kill -TERM "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null' EXIT
+  DEMO_SERVER_PID=$!
+  trap stop_demo_server EXIT  # the server is ours: stop it whatever happens below
 
-  log "stream the sequence at 30 Hz (JPEG colour, PNG depth)"
+  log "stream the sequence live at 30 Hz (JPEG colour, PNG depth; the server skips to the newest frame when behind)"
   "$fslam" stream --dataset "$OUT/sequence" --prefix "$prefix" --session demo --map room \
-    --rate 30 --out "$OUT/trajectory.txt" | tee "$OUT/stream.txt"
+    --rate 30 --policy live --out "$OUT/trajectory.txt" --report "$OUT/stream.json" | tee "$OUT/stream.txt"
 
   log "renders from the server, at tracked poses of the trajectory"
-  for frame in 0 75 150 225 299; do
+  local frame
+  local tracked_frames
+  tracked_frames=$(python3 -c "
+import json; r = json.load(open('$OUT/stream.json')); print(' '.join(str(f) for f in r['tracked_frame_ids'][::60][:5]))")
+  for frame in $tracked_frames; do
     "$fslam" render --map room --frame "$frame" --prefix "$prefix" \
       --out "$OUT/renders/frame_$(printf %03d "$frame").png"
   done
-  log "segmentation from the server: instances without a prompt, and one click"
-  mkdir -p "$OUT/segmentation"
-  "$fslam" segment --map room --frame 150 --prefix "$prefix" \
-    --out "$OUT/segmentation/instances_150.png" --overlay "$OUT/segmentation/instances_150_overlay.png"
-  "$fslam" segment --map room --frame 150 --points 320,300 --prefix "$prefix" \
-    --out "$OUT/segmentation/click_150.png" --overlay "$OUT/segmentation/click_150_overlay.png"
+  local seg_frame
+  seg_frame=$(python3 -c "
+import json; r = json.load(open('$OUT/stream.json')); ids = r['tracked_frame_ids']; print(ids[len(ids) // 2])")
+  log "segmentation from the server at frame $seg_frame: instances without a prompt, and one click"
+  "$fslam" segment --map room --frame "$seg_frame" --prefix "$prefix" \
+    --out "$OUT/segmentation/instances.png" --overlay "$OUT/segmentation/instances_overlay.png"
+  "$fslam" segment --map room --frame "$seg_frame" --points 320,300 --prefix "$prefix" \
+    --out "$OUT/segmentation/click.png" --overlay "$OUT/segmentation/click_overlay.png"
   "$fslam" status --prefix "$prefix" | tee "$OUT/status.txt"
   "$fslam" save-map --map room --prefix "$prefix"
 
   log "stop the server"
-  kill -TERM "$server_pid"
-  wait "$server_pid"
-  server_pid=""
+  kill -TERM "$DEMO_SERVER_PID"
+  wait "$DEMO_SERVER_PID"
+  DEMO_SERVER_PID=""
   trap - EXIT
   cat "$OUT/server.log"
 
   "$fslam" eval --gt "$OUT/sequence/groundtruth.txt" --est "$OUT/trajectory.txt" \
     --json "$OUT/trajectory_eval.json" --plot "$OUT/trajectory.png"
-  log "outputs"
+  log "main job done in $((SECONDS - t0)) s; outputs"
   echo "sequence:        $OUT/sequence (TUM layout: rgb/, depth/, labels/, groundtruth.txt)"
   echo "trajectory:      $OUT/trajectory.txt (poses the server sent back, TUM format)"
-  echo "stream report:   $OUT/stream.txt (poses received, ATE, frame-to-pose latency by stage)"
+  echo "stream report:   $OUT/stream.txt, $OUT/stream.json (tracked / skipped, ATE, latency by stage)"
   echo "renders:         $OUT/renders/ (colour, depth, normals, opacity from the served map)"
   echo "segmentation:    $OUT/segmentation/ (promptless instances and a one-click mask, with overlays)"
   echo "map:             $OUT/maps/room/ (map.ply: 3DGS PLY; poses, camera; served again on restart)"
   echo "trajectory plot: $OUT/trajectory.png (tracked vs ground truth)"
   echo "evaluation:      $OUT/trajectory_eval.json (ATE, RPE)"
   echo "server:          $OUT/server.log, $OUT/status.txt"
+  python3 - "$OUT/stream.json" "$OUT/trajectory_eval.json" <<'PY'
+import json, sys
+s, e = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+lat = s["latency"]["frame_to_pose"]
+ate = e.get("ate", {}).get("rmse_m", e.get("ate_rmse_m", float("nan")))
+print(f"\nfigures: {s['tracked']} of {s['frames_sent']} frames tracked, {s['skipped']} skipped "
+      f"(live policy), {s['errors']} errors; ATE {100 * ate:.2f} cm; frame -> pose "
+      f"p50 {lat['p50_ms']:.0f} ms, p99 {lat['p99_ms']:.0f} ms")
+PY
 }
 
 [[ $INSTALL -eq 1 ]] && install_packages

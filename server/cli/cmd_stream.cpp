@@ -249,6 +249,12 @@ int run_stream(const StreamArgs& args) {
                            {"no_answer", missing},      {"seconds_to_last_pose", elapsed},
                            {"policy", args.policy},     {"rate", args.rate},
                            {"latency", latency_json(latency)}};
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    std::vector<std::uint64_t> ids;
+    for (const auto& [id, p] : poses) ids.push_back(id);
+    report["tracked_frame_ids"] = ids;
+  }
   if (dataset->has_ground_truth() && !trajectory.empty()) {
     core::AteResult ate;
     if (core::compute_ate(dataset->ground_truth(), trajectory, core::AteConfig{}, &ate, &why)) {

@@ -30,8 +30,10 @@ int serve_until_signal(const ServerConfig& config) {
     g_stop = 0;
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
-    std::fprintf(stderr, "fslam-server: serving on prefix '%s', queue %zu frames per session, %s\n",
-                 config.prefix.c_str(), config.queue_capacity,
+    std::fprintf(stderr,
+                 "fslam-server: serving on prefix '%s', frame policy %s by default (queue sessions "
+                 "hold %zu frames), %s\n",
+                 config.prefix.c_str(), config.frame_policy.c_str(), config.queue_capacity,
                  config.map_dir.empty() ? "maps are not kept on disk (no --map-dir)"
                                         : ("maps in " + config.map_dir).c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
