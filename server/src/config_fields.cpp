@@ -321,6 +321,7 @@ void add_server_fields(std::vector<ConfigField>* f) {
   server.add("frame_policy", &ServerConfig::frame_policy);
   server.add("queue_capacity", &ServerConfig::queue_capacity);
   server.add("mapping_threads", &ServerConfig::mapping_threads);
+  server.add("pipelined_tracking", &ServerConfig::pipelined_tracking);
   server.add("status_period_ms", &ServerConfig::status_period_ms);
   server.add("map_dir", &ServerConfig::map_dir);
   server.add("load_maps_at_start", &ServerConfig::load_maps_at_start);

@@ -83,6 +83,7 @@ struct Server::Session {
   std::deque<PreparedFrame> prepared;  // waiting to be registered; live: at most one
   bool closing = false;
   bool preparing_done = false;    // the preparing thread drained `queue` after closing
+  bool started = false;           // the first frame was registered (tracking thread only)
   std::thread preparing, tracking;
   std::unique_ptr<MappingThread> mapping;
   // Status counters (guarded by `mutex`).
@@ -512,8 +513,12 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       s->live = msg.policy == fslam_proto_POLICY_LIVE ||
                 (msg.policy != fslam_proto_POLICY_QUEUE && config_.frame_policy == "live");
       Session* raw = s.get();
-      s->preparing = std::thread([this, raw] { run_on_one_thread([&] { prepare_frames(raw); }); });
-      s->tracking = std::thread([this, raw] { run_on_one_thread([&] { track_frames(raw); }); });
+      if (config_.pipelined_tracking) {
+        s->preparing = std::thread([this, raw] { run_on_one_thread([&] { prepare_frames(raw); }); });
+        s->tracking = std::thread([this, raw] { run_on_one_thread([&] { track_frames(raw); }); });
+      } else {
+        s->tracking = std::thread([this, raw] { run_on_one_thread([&] { prepare_and_track_frames(raw); }); });
+      }
       s->mapping = std::make_unique<MappingThread>(
           raw->map->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
           [raw](const core::KeyframeReport& report) {
@@ -618,52 +623,62 @@ void Server::handle_frame(const fslam_proto_Frame& msg) {
 }
 
 void Server::run_on_one_thread(const std::function<void()>& work) {
-  // A live camera's frame is prepared on one thread and registered on another, each in an arena
-  // of its own with no workers: the parallel loops inside decoding and the feature encoder
+  // A session's frame threads (prepare, register; or both in one) each run in an arena of their
+  // own with no workers: the parallel loops inside decoding and the feature encoder
   // (OpenCV runs on TBB) never wait for a TBB worker busy with, or niced by, mapping.
   tbb::task_arena one_thread(1);
   one_thread.execute(work);
 }
 
-void Server::prepare_frames(Session* s) {
-  core::SlamPipeline& pipeline = *s->map->pipeline;
-  for (;;) {
-    QueuedFrame queued;
-    {
-      std::unique_lock<std::mutex> lock(s->mutex);
-      s->wake.wait(lock, [&] {
-        return (!s->queue.empty() && (s->live || s->prepared.size() < kPreparedAhead)) ||
-               (s->closing && s->queue.empty());
-      });
-      if (s->queue.empty()) {  // closing and drained
-        s->preparing_done = true;
-        s->wake.notify_all();
-        return;
-      }
-      queued = std::move(s->queue.front());
-      s->queue.pop_front();
-    }
+bool Server::prepare_one(Session* s, QueuedFrame&& queued, PreparedFrame* prepared) {
+  prepared->queue_ms = ms_since(queued.queued);
+  std::string why;
+  core::RgbdFrame frame;
+  const Clock::time_point t_decode = Clock::now();
+  const bool decoded = decode_frame(queued.frame, &frame, &why);
+  prepared->decode_ms = ms_since(t_decode);
+  const Clock::time_point t_prepare = Clock::now();
+  const bool ready = decoded && s->map->pipeline->prepare_frame(std::move(frame), &prepared->frame, &why);
+  prepared->prepare_ms = ms_since(t_prepare);
+  prepared->ready = Clock::now();
+  if (ready) return true;
+  const std::string message = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
+  {
+    std::lock_guard<std::mutex> lock(s->mutex);
+    ++s->dropped;
+    s->last_drop_reason = message;
+  }
+  publish_result(s->name.c_str(), queued.frame.frame_id, s->map->name, message);
+  return false;
+}
+
+// Waits for the next accepted frame; false when the session closes with nothing left.
+// `room`: in a queue-policy session, wait until registration has room for one more.
+bool Server::next_queued(Session* s, bool room, QueuedFrame* queued) {
+  std::unique_lock<std::mutex> lock(s->mutex);
+  s->wake.wait(lock, [&] {
+    return (!s->queue.empty() && (!room || s->live || s->prepared.size() < kPreparedAhead)) ||
+           (s->closing && s->queue.empty());
+  });
+  if (s->queue.empty()) return false;
+  *queued = std::move(s->queue.front());
+  s->queue.pop_front();
+  return true;
+}
+
+void Server::prepare_and_track_frames(Session* s) {
+  QueuedFrame queued;
+  while (next_queued(s, false, &queued)) {
     PreparedFrame prepared;
-    prepared.queue_ms = ms_since(queued.queued);
-    std::string why;
-    core::RgbdFrame frame;
-    const Clock::time_point t_decode = Clock::now();
-    const bool decoded = decode_frame(queued.frame, &frame, &why);
-    prepared.decode_ms = ms_since(t_decode);
-    const Clock::time_point t_prepare = Clock::now();
-    const bool ready = decoded && pipeline.prepare_frame(std::move(frame), &prepared.frame, &why);
-    prepared.prepare_ms = ms_since(t_prepare);
-    if (!ready) {
-      const std::string message = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
-      {
-        std::lock_guard<std::mutex> lock(s->mutex);
-        ++s->dropped;
-        s->last_drop_reason = message;
-      }
-      publish_result(s->name.c_str(), queued.frame.frame_id, s->map->name, message);
-      continue;
-    }
-    prepared.ready = Clock::now();
+    if (prepare_one(s, std::move(queued), &prepared)) track_one(s, std::move(prepared));
+  }
+}
+
+void Server::prepare_frames(Session* s) {
+  QueuedFrame queued;
+  while (next_queued(s, true, &queued)) {
+    PreparedFrame prepared;
+    if (!prepare_one(s, std::move(queued), &prepared)) continue;
     {
       std::lock_guard<std::mutex> lock(s->mutex);
       if (s->live) {
@@ -682,11 +697,12 @@ void Server::prepare_frames(Session* s) {
     }
     s->wake.notify_all();
   }
+  std::lock_guard<std::mutex> lock(s->mutex);
+  s->preparing_done = true;
+  s->wake.notify_all();
 }
 
 void Server::track_frames(Session* s) {
-  bool first = true;
-  core::SlamPipeline& pipeline = *s->map->pipeline;
   for (;;) {
     PreparedFrame prepared;
     {
@@ -697,53 +713,60 @@ void Server::track_frames(Session* s) {
       s->prepared.pop_front();
     }
     s->wake.notify_all();  // a queue-policy preparer may be waiting for room
-    const double queue_ms = prepared.queue_ms + ms_since(prepared.ready);
-    const core::RgbdFrame& frame = prepared.frame.frame;
-    const std::uint64_t frame_id = static_cast<std::uint64_t>(frame.id);
-    const double timestamp = frame.timestamp;
-    const core::PinholeCamera camera = frame.camera;
-    if (first && frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
-    first = false;
-    core::TrackingResult result;
-    std::string why;
-    const Clock::time_point t0 = Clock::now();
-    const bool tracked = pipeline.track_prepared(std::move(prepared.frame), &result, &why);
-    const double track_ms = prepared.prepare_ms + ms_since(t0);
-    {
-      std::lock_guard<std::mutex> lock(s->mutex);
-      ++s->processed;
-      record(&s->decode_ms, prepared.decode_ms);
-      record(&s->queue_ms, queue_ms);
-      record(&s->track_ms, track_ms);
-    }
-    if (!tracked) {
-      publish_result(s->name.c_str(), frame_id, s->map->name, why);
-      continue;
-    }
-    {
-      std::lock_guard<std::mutex> lock(s->map->mutex);
-      MapEntry& map = *s->map;
-      map.camera = camera;
-      map.pose_index[frame_id] = map.poses.size();
-      map.poses.push_back({frame_id, timestamp, result.T_world_camera});
-    }
-    fslam_proto_PoseStamped pose{};
-    std::string session = s->name;
-    pose.session = session.data();
-    pose.frame_id = frame_id;
-    pose.timestamp = timestamp;
-    to_wire(result.T_world_camera, &pose.T_world_camera);
-    pose.state = static_cast<fslam_proto_TrackingState>(static_cast<int>(result.state));
-    pose.keyframe = result.keyframe;
-    pose.decode_ms = static_cast<float>(prepared.decode_ms);
-    pose.queue_ms = static_cast<float>(queue_ms);
-    pose.track_ms = static_cast<float>(track_ms);
-    std::string note = result.message;
-    pose.note = note.data();
-    dds_write(pose_writer_.get(), &pose);
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++stats_.poses_published;
+    track_one(s, std::move(prepared));
   }
+}
+
+void Server::track_one(Session* s, PreparedFrame&& prepared) {
+  core::SlamPipeline& pipeline = *s->map->pipeline;
+  const double queue_ms = prepared.queue_ms + ms_since(prepared.ready);
+  const core::RgbdFrame& frame = prepared.frame.frame;
+  const std::uint64_t frame_id = static_cast<std::uint64_t>(frame.id);
+  const double timestamp = frame.timestamp;
+  const core::PinholeCamera camera = frame.camera;
+  if (!s->started) {
+    if (frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
+    s->started = true;
+  }
+  core::TrackingResult result;
+  std::string why;
+  const Clock::time_point t0 = Clock::now();
+  const bool tracked = pipeline.track_prepared(std::move(prepared.frame), &result, &why);
+  const double track_ms = prepared.prepare_ms + ms_since(t0);
+  {
+    std::lock_guard<std::mutex> lock(s->mutex);
+    ++s->processed;
+    record(&s->decode_ms, prepared.decode_ms);
+    record(&s->queue_ms, queue_ms);
+    record(&s->track_ms, track_ms);
+  }
+  if (!tracked) {
+    publish_result(s->name.c_str(), frame_id, s->map->name, why);
+    return;
+  }
+  {
+    std::lock_guard<std::mutex> lock(s->map->mutex);
+    MapEntry& map = *s->map;
+    map.camera = camera;
+    map.pose_index[frame_id] = map.poses.size();
+    map.poses.push_back({frame_id, timestamp, result.T_world_camera});
+  }
+  fslam_proto_PoseStamped pose{};
+  std::string session = s->name;
+  pose.session = session.data();
+  pose.frame_id = frame_id;
+  pose.timestamp = timestamp;
+  to_wire(result.T_world_camera, &pose.T_world_camera);
+  pose.state = static_cast<fslam_proto_TrackingState>(static_cast<int>(result.state));
+  pose.keyframe = result.keyframe;
+  pose.decode_ms = static_cast<float>(prepared.decode_ms);
+  pose.queue_ms = static_cast<float>(queue_ms);
+  pose.track_ms = static_cast<float>(track_ms);
+  std::string note = result.message;
+  pose.note = note.data();
+  dds_write(pose_writer_.get(), &pose);
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++stats_.poses_published;
 }
 
 void Server::accept_request(const fslam_proto_Request& msg) {

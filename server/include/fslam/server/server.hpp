@@ -49,6 +49,9 @@ struct ServerConfig {
   std::string frame_policy = "live";
   std::size_t queue_capacity = 64;              // frames waiting per queue-policy session
   int mapping_threads = 0;                      // TBB threads of each session's mapping; 0 = all cores
+  // Each session prepares its next frame (decode, features, source Gaussians) on a second
+  // thread while the current one registers; false: one thread does both, frame after frame.
+  bool pipelined_tracking = true;
   int status_period_ms = 1000;                  // fslam/status, per session and idle map
   // Persistence: maps live in <map_dir>/<name>/ (map_files.hpp). Empty: nothing is saved or
   // loaded, and save / load requests are refused.
@@ -128,9 +131,14 @@ class Server {
   void publish_skip(const std::string& session, std::uint64_t frame_id, double timestamp,
                     const std::string& reason);
   static void run_on_one_thread(const std::function<void()>& work);
-  // A session's two frame threads: decode + prepare (features, source Gaussians), then register.
+  // A session's frame threads: decode + prepare (features, source Gaussians), then register;
+  // or one thread doing both (server.pipelined_tracking false).
   void prepare_frames(Session* session);
   void track_frames(Session* session);
+  void prepare_and_track_frames(Session* session);
+  bool next_queued(Session* session, bool room, QueuedFrame* queued);
+  bool prepare_one(Session* session, QueuedFrame&& queued, PreparedFrame* prepared);
+  void track_one(Session* session, PreparedFrame&& prepared);
   void publish_status();
   void finish_session(Session* session);
   void log(const std::string& message) const;
