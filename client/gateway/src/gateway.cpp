@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <utility>
 
 #include <nlohmann/json.hpp>
@@ -244,6 +245,15 @@ void Gateway::read_maps() {
       }
       lock.lock();
       ++stats_.map_reads;
+      if (options_.verbose) {
+        std::fprintf(stderr, "fslam-gateway: map '%s' since %llu: %s\n", map.c_str(),
+                     static_cast<unsigned long long>(since),
+                     !ok ? why.c_str()
+                         : gaussians.unchanged ? "unchanged"
+                                               : ("version " + std::to_string(gaussians.version) + ", " +
+                                                  std::to_string(gaussians.count) + " Gaussians in " +
+                                                  std::to_string(gaussians.requests) + " requests").c_str());
+      }
       if (!message) continue;
       maps_[map] = {gaussians.version, gaussians.count, message};
       std::vector<std::uint64_t> viewers;

@@ -34,7 +34,8 @@ std::string usage() {
          "  --map-period MS    at most one map read per map per MS (default 250)\n"
          "  --timeout MS       how long a render / segment / map read may take (default 60000)\n"
          "  --max-viewers N    WebSocket connections at once (default 16)\n"
-         "  --port-file FILE   write the bound port to FILE once listening\n";
+         "  --port-file FILE   write the bound port to FILE once listening\n"
+         "  --verbose          one line per map read on stderr\n";
 }
 
 bool is_loopback(const std::string& address) {
@@ -51,6 +52,10 @@ bool parse_options(const std::vector<std::string>& args, GatewayOptions* o, std:
     if (a == "-h" || a == "--help") {
       *help = true;
       return true;
+    }
+    if (a == "--verbose") {
+      o->verbose = true;
+      continue;
     }
     if (i + 1 >= args.size()) return fail(why, "option " + a + " needs a value (or is unknown)");
     const std::string& v = args[++i];

@@ -18,6 +18,7 @@ struct GatewayOptions {
   int request_timeout_ms = 60000;      // render / segment / map export answers
   int max_viewers = 16;                // WebSocket connections at once
   int workers = 2;                     // render / segment requests forwarded at once
+  bool verbose = false;                // one line per map read on stderr
 };
 
 // Parses the command line (argv without the program name). False with `why` for an unknown

@@ -7,7 +7,7 @@
 // puppeteer-core is missing.
 //
 //   node viewer_e2e.mjs --bin BUILD/bin --web BUILD/viewer --modules client/gateway/web
-//       [--out DIR] [--frames N] [--rate HZ] [--weights F] [--keep]
+//       [--out DIR] [--frames N] [--rate HZ] [--weights F] [--room DIR] [--keep]
 import { spawn, execFileSync } from "node:child_process";
 import { createRequire } from "node:module";
 import fs from "node:fs";
@@ -74,7 +74,7 @@ async function until(what, fn, timeoutMs = 60000, periodMs = 250) {
     await sleep(periodMs);
   }
 }
-const fslam = (...a) => execFileSync(path.join(bin, "fslam"), a, { env, encoding: "utf8" });
+const fslam = (...a) => execFileSync(path.join(bin, "fslam"), a, { env, encoding: "utf8", stdio: ["ignore", "pipe", "pipe"] });
 function check(ok, what) {
   if (!ok) throw new Error(`FAILED: ${what}`);
   log(`ok: ${what}`);
@@ -84,23 +84,26 @@ let browser;
 let failed = false;
 try {
   // 1. The room, the weights, the server and the gateway.
-  const seq = path.join(work, "room");
-  fslam("synth", "--out", seq, "--frames", String(frames), "--seed", "1");
+  // --room DIR: a room synthesised before with the same --frames (re-runs by hand).
+  const seq = args.room ? path.resolve(args.room) : path.join(work, "room");
+  if (!args.room) fslam("synth", "--out", seq, "--frames", String(frames), "--seed", "1");
   let weights = args.weights || path.join(repo, "out", "autoencoder", "builtin.fae");
   if (!fs.existsSync(weights)) {
-    // A small autoencoder of its own (the demo's full one takes about a minute).
-    weights = path.join(work, "builtin.fae");
-    log("no out/autoencoder/builtin.fae: training a small autoencoder");
-    execFileSync("bash", [path.join(repo, "deploy", "make_builtin_autoencoder.sh"), "--out", weights,
-      "--work", path.join(work, "ae"), "--frames", "10", "--steps", "1500", "--fslam", path.join(bin, "fslam")],
-    { env, stdio: "ignore" });
+    // A smaller autoencoder of its own, made once per build folder (the demo's takes a minute).
+    weights = path.join(bin, "..", "test_models", "viewer_autoencoder.fae");
+    if (!fs.existsSync(weights)) {
+      log("no out/autoencoder/builtin.fae: training a small autoencoder for the test");
+      execFileSync("bash", [path.join(repo, "deploy", "make_builtin_autoencoder.sh"), "--out", weights,
+        "--work", path.join(work, "ae"), "--frames", "10", "--steps", "2000", "--fslam", path.join(bin, "fslam")],
+      { env, stdio: "ignore" });
+    }
   }
   log(`room synthesised (${frames} frames), weights ${weights}`);
   const server = start("server", path.join(bin, "fslam-server"), ["--prefix", prefix,
     "--set", `features.autoencoder_path=${weights}`]);
   const portFile = path.join(work, "port");
   start("gateway", path.join(bin, "fslam-gateway"), ["--prefix", prefix, "--port", "0",
-    "--port-file", portFile, "--web", web]);
+    "--port-file", portFile, "--web", web, "--verbose"]);
   const port = Number(await until("the gateway's port", () => fs.existsSync(portFile) && fs.readFileSync(portFile, "utf8").trim()));
   const url = `http://127.0.0.1:${port}/?size=640x480`;
   log(`gateway at ${url}`);
@@ -175,10 +178,13 @@ try {
   const status = fslam("status", "--prefix", prefix);
   const row = status.split("\n").find((l) => l.startsWith("room "));
   const [serverCount, serverVersion] = row.trim().split(/\s+/).slice(2, 4).map(Number);
+  let last = null;
   const shown = await until("the final version in the page", async () => {
-    const s = await snapshot();
-    return s.version === serverVersion ? s : null;
-  }, 30000, 250);
+    last = await snapshot();
+    return last.version === serverVersion ? last : null;
+  }, 240000, 500).catch((e) => {
+    throw new Error(`${e.message}: the page shows version ${last.version} (${last.count} Gaussians), fslam status: ${row}`);
+  });
   check(shown.count === serverCount, `page shows ${shown.count} Gaussians at version ${shown.version}; the server's status: ${serverCount} at ${serverVersion}`);
   const figures = await page.evaluate(() => ({ ...window.fslamViewer.state.stats, fps: window.fslamViewer.state.fps }));
 

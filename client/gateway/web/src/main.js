@@ -35,13 +35,29 @@ renderer.setPixelRatio(1);  // one canvas pixel = one pixel of the views sent to
 renderer.setClearColor(0x000000, 1);
 const scene = new THREE.Scene();
 const camera = new THREE.PerspectiveCamera(60, 4 / 3, 0.02, 100);
-camera.position.set(0, -1, -2);
-camera.up.set(0, -1, 0);  // SLAM worlds start at the first camera: y down is "up" on screen
-const spark = new SparkRenderer({ renderer });
+camera.position.set(0, 0, -3);
+// Frames are drawn on demand (a change, or Spark asking after a sort): without a GPU a frame takes
+// a second or more, and a page that draws all the time has no time left to take in map versions.
+let dirtyFrames = 2, continuousUntil = 0;
+function invalidate(frames = 3) { dirtyFrames = Math.max(dirtyFrames, frames); }
+const spark = new SparkRenderer({ renderer, onDirty: () => invalidate() });
 scene.add(spark);
-const controls = new OrbitControls(camera, canvas);
-controls.enableDamping = false;
+// Until the user moves the view, every new map version re-frames it (autoView).
+let autoView = true;
+let controls = makeControls();
 let splatMesh = null;
+
+function makeControls() {
+  const c = new OrbitControls(camera, canvas);
+  c.enableDamping = false;
+  c.addEventListener("start", () => { autoView = false; });
+  c.addEventListener("change", () => {
+    invalidate();
+    // A mask belongs to the view it was asked from.
+    if (state.lastSegment) clearMask();
+  });
+  return c;
+}
 
 const trajectoryGeometry = new THREE.BufferGeometry();
 const trajectory = new THREE.Line(trajectoryGeometry, new THREE.LineBasicMaterial({ color: 0x33ddff }));
@@ -87,6 +103,7 @@ function applyIntrinsics() {
 function resize() {
   const [w, h] = viewSize();
   if (canvas.width !== w || canvas.height !== h) {
+    invalidate();
     renderer.setSize(w, h, true);
     const overlay = $("overlay");
     overlay.width = w;
@@ -108,6 +125,7 @@ function cameraPose() {
 
 // Puts the three.js camera at a camera-to-world pose in the server's convention.
 function placeCamera(t, q) {
+  invalidate();
   const m = new THREE.Matrix4().compose(new THREE.Vector3(...t), new THREE.Quaternion(...q).normalize(),
     new THREE.Vector3(1, 1, 1)).multiply(kFlipYZ);
   m.decompose(camera.position, camera.quaternion, new THREE.Vector3());
@@ -126,17 +144,23 @@ function viewOfCamera() {
 function showGaussians(header, payload) {
   const t0 = performance.now();
   const count = header.count;
-  const packed = new Uint32Array(Math.max(1, count) * 4);
+  // One mesh for the map's life: each version rewrites its splats in place (a new SplatMesh per
+  // version costs seconds without a GPU).
+  const packedSplats = splatMesh ? splatMesh.packedSplats : null;
+  const packed = packedSplats ? packedSplats.ensureSplats(count) : new Uint32Array(Math.max(1, count) * 4);
   forEachRecord(payload, count, (i, x, y, z, sx, sy, sz, qw, qx, qy, qz, r, g, b, a) => {
     utils.setPackedSplat(packed, i, x, y, z, sx, sy, sz, qx, qy, qz, qw, a, r, g, b);
   });
-  const mesh = new SplatMesh({ packedSplats: new PackedSplats({ packedArray: packed, numSplats: count }) });
-  scene.add(mesh);
-  if (splatMesh) {
-    scene.remove(splatMesh);
-    splatMesh.dispose();
+  if (packedSplats) {
+    packedSplats.numSplats = count;
+    packedSplats.needsUpdate = true;
+    splatMesh.updateGenerator();
+    splatMesh.updateVersion();
+  } else {
+    splatMesh = new SplatMesh({ packedSplats: new PackedSplats({ packedArray: packed, numSplats: count }) });
+    scene.add(splatMesh);
   }
-  splatMesh = mesh;
+  invalidate(6);
   const first = state.splats.version === 0;
   state.splats = { version: header.version, count };
   const s = state.stats;
@@ -155,20 +179,32 @@ function showGaussians(header, payload) {
   $("rate").textContent = `${s.versions} versions received` +
     (span > 0 ? `, ${((s.versions - 1) / span).toFixed(2)} per s` : "") +
     `, last ${(s.lastBytes / 1024).toFixed(0)} KiB`;
-  if (first && !$("follow").checked) lookAtMap(payload, count);
+  if ((first || autoView) && !$("follow").checked && count > 0) frameMap(payload, count);
 }
 
-// First map: look at it from its first camera (or the middle of its Gaussians).
-function lookAtMap(payload, count) {
+// An overview: the map's middle seen from behind its first camera, far enough back to hold the
+// map's spread, with that camera's image "up" as up (SLAM worlds have no fixed vertical).
+function frameMap(payload, count) {
+  const c = new THREE.Vector3(), p = new THREE.Vector3();
+  const step = Math.max(1, Math.floor(count / 5000));
+  let n = 0, spread = 0;
+  forEachRecord(payload, count, (i, x, y, z) => { if (i % step === 0) { c.add(p.set(x, y, z)); ++n; } });
+  c.multiplyScalar(1 / n);
+  forEachRecord(payload, count, (i, x, y, z) => { if (i % step === 0) spread += p.set(x, y, z).distanceToSquared(c); });
+  const radius = Math.sqrt(spread / n);
   const traj = trajectoryOf(state.map);
-  if (traj.length > 0) {
-    const p = traj[0];
-    placeCamera([p[1], p[2], p[3]], [p[4], p[5], p[6], p[7]]);
-    return;
+  const q = traj.length > 0 ? new THREE.Quaternion(traj[0][4], traj[0][5], traj[0][6], traj[0][7]).normalize() : new THREE.Quaternion();
+  const forward = new THREE.Vector3(0, 0, 1).applyQuaternion(q), up = new THREE.Vector3(0, -1, 0).applyQuaternion(q);
+  const distance = Math.max(1, 1.8 * radius / Math.tan(Math.PI / 6));
+  if (!camera.up.equals(up)) {
+    camera.up.copy(up);
+    controls.dispose();  // OrbitControls takes "up" when made
+    controls = makeControls();
   }
-  const c = new THREE.Vector3();
-  forEachRecord(payload, count, (i, x, y, z) => c.add(new THREE.Vector3(x, y, z)));
-  if (count > 0) controls.target.copy(c.multiplyScalar(1 / count));
+  camera.position.copy(c).addScaledVector(forward, -distance).addScaledVector(up, 0.35 * distance);
+  controls.target.copy(c);
+  camera.lookAt(c);
+  controls.update();
 }
 
 // --- trajectories and status ----------------------------------------------------------------
@@ -185,6 +221,7 @@ function mapOfSession(session) {
 }
 
 function redrawTrajectory() {
+  invalidate();
   const poses = trajectoryOf(state.map);
   const v = new Float32Array(poses.length * 3);
   poses.forEach((p, i) => v.set([p[1], p[2], p[3]], 3 * i));
@@ -240,6 +277,12 @@ function selectMap(map) {
   state.map = map;
   state.subscribed = true;
   state.splats = { version: 0, count: 0 };
+  state.pendingMap = null;
+  if (splatMesh) {
+    scene.remove(splatMesh);
+    splatMesh.dispose();
+    splatMesh = null;
+  }
   send({ type: "subscribe", map });
   redrawTrajectory();
 }
@@ -323,6 +366,7 @@ document.querySelectorAll("input[name=tool]").forEach((r) => r.addEventListener(
   controls.enabled = tool() === "orbit" && !$("follow").checked;
 }));
 $("follow").addEventListener("change", () => {
+  autoView = false;
   controls.enabled = tool() === "orbit" && !$("follow").checked;
   redrawTrajectory();
 });
@@ -334,13 +378,10 @@ $("text-form").addEventListener("submit", (e) => {
   const text = $("text").value.trim();
   if (text) request("segment", { mode: "text", text });
 });
-controls.addEventListener("change", () => {
-  // A mask belongs to the view it was asked from.
-  if (state.lastSegment) {
-    const overlay = $("overlay");
-    overlay.getContext("2d").clearRect(0, 0, overlay.width, overlay.height);
-  }
-});
+function clearMask() {
+  const overlay = $("overlay");
+  overlay.getContext("2d").clearRect(0, 0, overlay.width, overlay.height);
+}
 
 // --- the connection -------------------------------------------------------------------------
 function connect() {
@@ -362,7 +403,9 @@ function connect() {
   socket.onmessage = (event) => {
     if (typeof event.data !== "string") {
       const { tag, header, payload } = decodeFrame(event.data);
-      if (tag === "GMAP" && header.map === state.map) showGaussians(header, payload);
+      // Only the newest version waiting is built, at the next frame: a page that renders slowly
+      // (no GPU) skips versions instead of falling behind.
+      if (tag === "GMAP" && header.map === state.map) state.pendingMap = { header, payload };
       else if (tag === "SEGM") showSegment(header, payload).then(() => state.pending.delete(header.id));
       else if (tag === "REND") { showRender(header, payload); state.pending.delete(header.id); }
       return;
@@ -387,18 +430,25 @@ function connect() {
 // --- the frame loop -------------------------------------------------------------------------
 let frames = 0, fpsSince = performance.now();
 renderer.setAnimationLoop(() => {
+  if (state.pendingMap) {
+    const { header, payload } = state.pendingMap;
+    state.pendingMap = null;
+    if (header.map === state.map) showGaussians(header, payload);
+  }
   resize();
   if (controls.enabled) controls.update();
-  applyIntrinsics();
-  renderer.render(scene, camera);
-  ++frames;
   const now = performance.now();
   if (now - fpsSince >= 1000) {
     state.fps = (frames * 1000) / (now - fpsSince);
-    $("fps").textContent = `${state.fps.toFixed(1)} fps`;
+    $("fps").textContent = `${state.fps.toFixed(1)} frames drawn per s${dirtyFrames > 0 || now < continuousUntil ? "" : " (idle)"}`;
     frames = 0;
     fpsSince = now;
   }
+  if (dirtyFrames <= 0 && now >= continuousUntil) return;
+  dirtyFrames -= 1;
+  applyIntrinsics();
+  renderer.render(scene, camera);
+  ++frames;
 });
 
 // For tests and scripts: the state, and a way to look from a given camera.
@@ -406,6 +456,7 @@ window.fslamViewer = {
   state,
   // view: { t, q (qx qy qz qw, camera-to-world, server convention), fx, fy, cx, cy, width, height }
   setView(view) {
+    autoView = false;
     state.intrinsics = { fx: view.fx, fy: view.fy, cx: view.cx, cy: view.cy, width: view.width, height: view.height };
     $("follow").checked = false;
     controls.enabled = false;
@@ -413,5 +464,19 @@ window.fslamViewer = {
   },
   viewOfCamera,
   request,
+  // Draws every frame for `ms` and resolves with the frame rate (benchmarks).
+  measureFps(ms) {
+    return new Promise((resolve) => {
+      let n = 0;
+      const t0 = performance.now();
+      continuousUntil = t0 + ms;
+      const tick = () => {
+        ++n;
+        if (performance.now() < continuousUntil) requestAnimationFrame(tick);
+        else resolve((n * 1000) / (performance.now() - t0));
+      };
+      requestAnimationFrame(tick);
+    });
+  },
 };
 connect();
