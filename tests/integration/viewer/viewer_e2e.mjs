@@ -26,8 +26,8 @@ const bin = path.resolve(args.bin || path.join(repo, "build", "bin"));
 const web = path.resolve(args.web || path.join(repo, "build", "viewer"));
 const modules = path.resolve(args.modules || path.join(repo, "client", "gateway", "web"));
 const outDir = path.resolve(args.out || path.join(bin, "..", "test_output", "viewer"));
-const frames = Number(args.frames || 60);
-const rate = args.rate || "10";
+const frames = Number(args.frames || 40);
+const rate = args.rate || "15";
 const chromium = process.env.FSLAM_CHROMIUM || "/usr/bin/chromium";
 const t0 = Date.now();
 const log = (...m) => console.log(`[${((Date.now() - t0) / 1000).toFixed(1)} s]`, ...m);
@@ -94,7 +94,7 @@ try {
     if (!fs.existsSync(weights)) {
       log("no out/autoencoder/builtin.fae: training a small autoencoder for the test");
       execFileSync("bash", [path.join(repo, "deploy", "make_builtin_autoencoder.sh"), "--out", weights,
-        "--work", path.join(work, "ae"), "--frames", "10", "--steps", "2000", "--fslam", path.join(bin, "fslam")],
+        "--work", path.join(work, "ae"), "--frames", "6", "--steps", "1500", "--fslam", path.join(bin, "fslam")],
       { env, stdio: "ignore" });
     }
   }
@@ -102,9 +102,12 @@ try {
   const server = start("server", path.join(bin, "fslam-server"), ["--prefix", prefix,
     "--set", `features.autoencoder_path=${weights}`]);
   const portFile = path.join(work, "port");
-  start("gateway", path.join(bin, "fslam-gateway"), ["--prefix", prefix, "--port", "0",
+  const gateway = start("gateway", path.join(bin, "fslam-gateway"), ["--prefix", prefix, "--port", "0",
     "--port-file", portFile, "--web", web, "--verbose"]);
-  const port = Number(await until("the gateway's port", () => fs.existsSync(portFile) && fs.readFileSync(portFile, "utf8").trim()));
+  const port = Number(await until("the gateway's port", () => {
+    if (gateway.exitCode !== null || server.exitCode !== null) throw new Error("the gateway or the server exited at start");
+    return fs.existsSync(portFile) && fs.readFileSync(portFile, "utf8").trim();
+  }));
   const url = `http://127.0.0.1:${port}/?size=640x480`;
   log(`gateway at ${url}`);
 
@@ -123,7 +126,8 @@ try {
     await page.setViewport({ width: 960, height: 540 });
     page.on("pageerror", (e) => log("page error:", String(e)));
     page.on("request", (r) => { if (!r.url().startsWith(`http://127.0.0.1:${port}/`) && !r.url().startsWith("ws://127.0.0.1") && !r.url().startsWith("data:") && !r.url().startsWith("blob:")) external.push(r.url()); });
-    await page.goto(url, { waitUntil: "load" });
+    page.setDefaultTimeout(180000);  // a loaded 2-core machine without a GPU is slow, not broken
+    await page.goto(url, { waitUntil: "load", timeout: 180000 });
     return page;
   }
   const page = await openViewer(browser);
@@ -159,7 +163,7 @@ try {
     const s = await snapshot();
     return s.count > 0 && s.lit > 0.02 ? s : null;
   }, 90000, 500);
-  await page.screenshot({ path: path.join(outDir, "viewer_growing.png") });
+  await page.screenshot({ path: path.join(outDir, "viewer_growing.jpg"), type: "jpeg", quality: 85 });
   check(first.lit > 0.02, `canvas not blank at map version ${first.version} (${first.count} Gaussians, ${(100 * first.lit).toFixed(1)} % of pixels lit)`);
   const later = await until("a later map version", async () => {
     const s = await snapshot();
@@ -205,7 +209,7 @@ try {
   const view = { t: [tx, ty, tz], q: [qx, qy, qz, qw], fx: intr[0], fy: intr[1], cx: intr[2], cy: intr[3], width: intr[4], height: intr[5] };
   await page.evaluate((v) => window.fslamViewer.setView(v), view);
   await sleep(1500);
-  await page.screenshot({ path: path.join(outDir, "viewer_map.png") });
+  await page.screenshot({ path: path.join(outDir, "viewer_map.jpg"), type: "jpeg", quality: 85 });
   const stamp = fs.readFileSync(path.join(seq, "rgb.txt"), "utf8").split("\n").filter((l) => l && !l.startsWith("#"))[k].split(/\s+/)[1];
   const labels = readPng(fs.readFileSync(path.join(seq, "labels", "instance", path.basename(stamp))));
   const structure = new Set(fs.readFileSync(path.join(seq, "instances.txt"), "utf8").split("\n")
@@ -236,7 +240,7 @@ try {
   }), 120000, 500);
   check(!seg.error, `segment request answered${seg.error ? ": " + seg.error : ""}`);
   await sleep(500);
-  await page.screenshot({ path: path.join(outDir, "viewer_click.png") });
+  await page.screenshot({ path: path.join(outDir, "viewer_click.jpg"), type: "jpeg", quality: 85 });
   let inter = 0, union = 0;
   for (let i = 0; i < W * H; ++i) {
     const a = seg.alpha[i] > 0, b = L[i] === object;
@@ -253,19 +257,18 @@ try {
     return s && s.mode === "promptless" ? s.instances : null;
   }), 120000, 500);
   await sleep(500);
-  await page.screenshot({ path: path.join(outDir, "viewer_instances.png") });
+  await page.screenshot({ path: path.join(outDir, "viewer_instances.jpg"), type: "jpeg", quality: 85 });
   check(inst > 1, `promptless: ${inst} instances in view`);
   check(external.length === 0, `nothing fetched from outside the gateway${external.length ? ": " + external.join(", ") : ""}`);
 
   // 8. Figures for docs/benchmarks.md.
   await page.evaluate((v) => window.fslamViewer.setView(v), view);
-  await sleep(5000);
-  const fps = await page.evaluate(() => window.fslamViewer.state.fps);
+  const fps = await page.evaluate(() => window.fslamViewer.measureFps(8000));
   const span = (figures.last - figures.first) / 1000;
   log(`figures: ${figures.versions} map versions in ${span.toFixed(1)} s while streaming at ${rate} Hz ` +
     `(${span > 0 ? ((figures.versions - 1) / span).toFixed(2) : "-"} versions/s), ${(figures.bytes / Math.max(1, figures.versions) / 1024).toFixed(0)} KiB per update on average, ` +
     `last ${(figures.lastBytes / 1024).toFixed(0)} KiB (${serverCount} Gaussians x 32 B), ` +
-    `page build of the last version ${figures.buildMs.toFixed(0)} ms; ${fps.toFixed(1)} fps at 640x480 (SwiftShader, map idle)`);
+    `page build of the last version ${figures.buildMs.toFixed(0)} ms; ${fps.toFixed(1)} fps at 640x480 drawing every frame (SwiftShader)`);
   await context2.close();
   console.log("viewer e2e: 1 passed, 0 failed");
 } catch (e) {
