@@ -48,16 +48,25 @@ PACKAGES=(
   cyclonedds-dev cyclonedds-tools libopenimageio-dev openimageio-tools
   libgtest-dev libgmock-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libtbb-dev
   libpng-dev  # the client writes depth PNGs itself (client/src/depth_png.hpp)
+  libboost-dev  # Boost.Beast (headers only): fslam-gateway's HTTP + WebSocket (docs/viewer.md)
   python3-onnx  # tests only: writes the tiny ONNX models of the onnx feature encoder's tests
 )
 
-install_packages() {
+# The browser viewer's page is bundled with npm (bundle_viewer); its end-to-end test drives Debian's
+# chromium (installed for --test only: about 80 MB, 47 s on dev-2c).
+VIEWER_PACKAGES=(nodejs npm)
+TEST_PACKAGES=(chromium)
+
+install_packages() { install_missing "${PACKAGES[@]}"; }
+
+# Installs those of the given Debian packages that are missing.
+install_missing() {
   local missing=()
-  for p in "${PACKAGES[@]}"; do
+  for p in "$@"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
   done
   if [[ ${#missing[@]} -eq 0 ]]; then
-    log "packages: all ${#PACKAGES[@]} present"
+    log "packages: all $# present"
     return
   fi
   log "packages: installing ${missing[*]}"
@@ -84,6 +93,30 @@ build() {
   local t0=$SECONDS
   cmake --build "$BUILD_DIR" -j "$JOBS"
   echo "build took $((SECONDS - t0)) s; binaries in $BUILD_DIR/bin"
+}
+
+# The viewer's page (docs/viewer.md): npm installs three.js, Spark and esbuild (and puppeteer-core
+# for the browser test) from the npm registry as package-lock.json pins them, and esbuild bundles
+# the page into $BUILD_DIR/viewer, which fslam-gateway serves; nothing is fetched at run time.
+# Node and npm come from Debian when missing. Without npm the page is skipped; the rest builds.
+bundle_viewer() {
+  local web="$ROOT/client/gateway/web"
+  if ! command -v npm >/dev/null; then
+    if [[ $INSTALL -eq 1 ]]; then
+      install_missing "${VIEWER_PACKAGES[@]}"
+    else
+      echo "viewer: npm not found; the page is not bundled (fslam-gateway needs it; see docs/viewer.md)"
+      return
+    fi
+  fi
+  local t0=$SECONDS
+  # npm ci again only when the lock file changed since the last install.
+  if [[ ! -f "$web/node_modules/.package-lock.json" || "$web/package-lock.json" -nt "$web/node_modules/.package-lock.json" ]]; then
+    log "viewer: npm ci ($web)"
+    (cd "$web" && npm ci --no-audit --no-fund --loglevel=error)
+  fi
+  node "$web/build.mjs" "$BUILD_DIR/viewer"
+  echo "viewer page took $((SECONDS - t0)) s"
 }
 
 # No DDS traffic may leave loopback on these machines: every process started from here uses it.
@@ -192,7 +225,9 @@ PY
 
 [[ $INSTALL -eq 1 ]] && install_packages
 [[ "$MODE" == install ]] && exit 0
+[[ $INSTALL -eq 1 && "$MODE" == test ]] && install_missing "${TEST_PACKAGES[@]}"
 build
+bundle_viewer
 case "$MODE" in
   test) run_tests ;;
   demo) run_demo ;;

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <vector>
 
 #include <unistd.h>
@@ -59,6 +60,8 @@ struct Client::Answer {
   ResultUpdate result;
   RenderOutput render;
   std::string path;
+  std::uint32_t gaussians_first = 0, gaussians_count = 0;  // REQUEST_MAP_GAUSSIANS
+  std::vector<std::uint8_t> gaussians;
 };
 
 namespace {
@@ -318,6 +321,83 @@ bool Client::segment(const SegmentQuery& query, SegmentOutput* output, int timeo
   return true;
 }
 
+GaussianRecord unpack_gaussian(const std::uint8_t* record) {
+  GaussianRecord g{};
+  std::memcpy(g.mean, record, 12);  // little-endian float32, as the server writes them
+  std::memcpy(g.scale, record + 12, 12);
+  for (int k = 0; k < 4; ++k) g.rotation[k] = static_cast<std::int8_t>(record[24 + k]) / 127.0f;
+  for (int c = 0; c < 3; ++c) g.rgb[c] = record[28 + c];
+  g.opacity = record[31];
+  return g;
+}
+
+bool Client::map_gaussians(const MapGaussiansQuery& query, MapGaussians* output, int timeout_ms,
+                           std::string* why) {
+  if (query.map_name.empty()) return fail(why, "map gaussians: no map name");
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+  *output = {};
+  constexpr int kAttempts = 3;
+  std::string last_error;
+  for (int attempt = 0; attempt < kAttempts; ++attempt) {
+    output->records.clear();
+    std::uint64_t version = 0;  // 0: the first chunk begins a read at the newest version
+    std::uint64_t total = 0;
+    for (;;) {
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          deadline - std::chrono::steady_clock::now());
+      if (left.count() <= 0) {
+        return fail(why, "map gaussians of '" + query.map_name + "': not read within " +
+                             std::to_string(timeout_ms) + " ms");
+      }
+      fslam_proto_Request msg{};
+      RequestStrings strings{id_, query.map_name, ""};
+      fill_request(&strings, new_request_id(), fslam_proto_REQUEST_MAP_GAUSSIANS, &msg);
+      msg.since_version = query.since_version;
+      msg.gaussians_version = version;
+      msg.gaussians_first = static_cast<std::uint32_t>(output->records.size() / kGaussianRecordBytes);
+      msg.gaussians_max = query.chunk_gaussians;
+      Answer answer;
+      ++output->requests;
+      std::string call_why;
+      if (!call(request_writer_.get(), &msg, id_, msg.request_id,
+                "map gaussians of '" + query.map_name + "'", static_cast<int>(left.count()), &answer,
+                &call_why)) {
+        // A version that went out of the server's hold while we read it: start again.
+        if (version != 0 && call_why.find("no longer held") != std::string::npos) {
+          last_error = call_why;
+          break;
+        }
+        return fail(why, call_why);
+      }
+      const RenderOutput& r = answer.render;
+      if (version == 0 && r.map_version <= query.since_version) {
+        output->version = r.map_version;
+        output->count = r.map_gaussians;
+        output->unchanged = true;
+        return true;
+      }
+      if (answer.gaussians.size() != std::size_t{answer.gaussians_count} * kGaussianRecordBytes ||
+          answer.gaussians_first != msg.gaussians_first || (version != 0 && r.map_version != version) ||
+          (version != 0 && r.map_gaussians != total)) {
+        return fail(why, "map gaussians of '" + query.map_name + "': the server sent an inconsistent chunk");
+      }
+      version = r.map_version;
+      total = r.map_gaussians;
+      output->records.insert(output->records.end(), answer.gaussians.begin(), answer.gaussians.end());
+      const std::uint64_t have = output->records.size() / kGaussianRecordBytes;
+      if (have == total) {
+        output->version = version;
+        output->count = total;
+        return true;
+      }
+      if (answer.gaussians_count == 0) {
+        return fail(why, "map gaussians of '" + query.map_name + "': the server sent an empty chunk");
+      }
+    }
+  }
+  return fail(why, last_error);
+}
+
 bool Client::save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
                       std::string* saved_to, std::string* why) {
   return map_folder_request(true, map_name, folder, timeout_ms, saved_to, why);
@@ -379,6 +459,7 @@ void Client::listen() {
       update.streaming = st.streaming;
       update.map_version = st.map_version;
       update.frames_tracked = st.frames_tracked;
+      update.text_queries = st.text_queries;
       std::lock_guard<std::mutex> lock(callback_mutex_);
       if (status_callback_) status_callback_(update);
     });
@@ -408,6 +489,11 @@ void Client::listen() {
         out.intrinsics = from_wire(r.intrinsics);
         out.map_version = r.map_version;
         out.map_gaussians = r.map_gaussians;
+        answer.gaussians_first = r.gaussians_first;
+        answer.gaussians_count = r.gaussians_count;
+        if (r.gaussians._buffer != nullptr) {
+          answer.gaussians.assign(r.gaussians._buffer, r.gaussians._buffer + r.gaussians._length);
+        }
         answer.result = update;
         answer.arrived = true;
         result_arrived_.notify_all();

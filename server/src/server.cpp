@@ -18,6 +18,7 @@
 #include "fslam/core/segmentation/segmentation.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/frame_codec.hpp"
+#include "fslam/server/map_export.hpp"
 #include "fslam/server/map_files.hpp"
 #include "fslam/server/mapping_thread.hpp"
 #include "fslam/server/render_images.hpp"
@@ -49,6 +50,7 @@ struct Server::MapEntry {
   // clustering carries its ids from the one before: ids form one chain over the versions.
   std::mutex instances_mutex;
   InstanceLabels instances;  // guarded by instances_mutex
+  MapExporter exporter;      // versions that chunked exports read (map_export.hpp)
 
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
 };
@@ -105,6 +107,7 @@ struct Server::Query {
   std::string text;
   bool has_output_view = false;
   fslam_proto_RenderRequest output_view{};
+  ExportRequest export_request;  // REQUEST_MAP_GAUSSIANS
 };
 
 namespace {
@@ -394,6 +397,7 @@ void Server::publish_status() {
     st->map_version = map.versions().version_number();
     st->map_gaussians = map.versions().latest()->size();
     st->resident_bytes = rss;
+    st->text_queries = grounding_ != nullptr;
   };
   for (const auto& [name, s] : sessions_) {
     fslam_proto_SessionStatus st{};
@@ -786,6 +790,7 @@ void Server::accept_request(const fslam_proto_Request& msg) {
     query->has_output_view = seg.has_output_view;
     query->output_view = seg.output_view;
   }
+  if (msg.kind == fslam_proto_REQUEST_MAP_GAUSSIANS) query->export_request = export_request_of(msg);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (queries_.size() < config_.query_queue_capacity) {
@@ -818,6 +823,7 @@ void Server::answer(const Query& query) {
   fslam_proto_Result r{};
   std::vector<std::vector<std::uint8_t>> buffers;  // image bytes the result points into
   std::vector<fslam_proto_Image> images;
+  std::vector<std::uint8_t> records;  // exported Gaussians the result points into
   std::string folder, why;
   bool ok = false;
   const std::shared_ptr<MapEntry> map = find_map(query.map_name);
@@ -829,6 +835,10 @@ void Server::answer(const Query& query) {
     case fslam_proto_REQUEST_SEGMENT:
       if (!map) why = "no map named '" + query.map_name + "'";
       else ok = segment(query, *map, &r, &buffers, &images, &why);
+      break;
+    case fslam_proto_REQUEST_MAP_GAUSSIANS:
+      if (!map) why = "no map named '" + query.map_name + "'";
+      else ok = answer_map_gaussians(map->versions(), &map->exporter, query.export_request, &r, &records, &why);
       break;
     case fslam_proto_REQUEST_SAVE_MAP:
       if (!map) why = "no map named '" + query.map_name + "'";
@@ -843,7 +853,7 @@ void Server::answer(const Query& query) {
     default:
       why = "unknown request kind " + std::to_string(static_cast<int>(query.kind));
   }
-  if (ok && query.kind != fslam_proto_REQUEST_RENDER && query.kind != fslam_proto_REQUEST_SEGMENT) {
+  if (ok && (query.kind == fslam_proto_REQUEST_SAVE_MAP || query.kind == fslam_proto_REQUEST_LOAD_MAP)) {
     const std::shared_ptr<MapEntry> now = find_map(query.map_name);
     r.map_version = now->versions().version_number();
     r.map_gaussians = now->versions().latest()->size();

@@ -89,6 +89,7 @@ struct StatusUpdate {
   float map_ms_p50 = 0, map_ms_p99 = 0;        // per keyframe
   bool streaming = false;               // false: a map no session streams into (session empty)
   std::uint64_t map_version = 0, frames_tracked = 0;
+  bool text_queries = false;            // the server answers text prompts (grounding model)
 };
 
 // Channels of a render (the proto's CHANNEL_* bits).
@@ -148,6 +149,34 @@ struct SegmentOutput {
   std::uint64_t map_version = 0, map_gaussians = 0;
 };
 
+// Map export (REQUEST_MAP_GAUSSIANS, docs/protocol.md "Map export"): a map version's Gaussians
+// for viewers, read in chunks of at most 32768 Gaussians (1 MiB) per DDS sample.
+constexpr std::size_t kGaussianRecordBytes = 32;
+
+struct MapGaussiansQuery {
+  std::string map_name;
+  std::uint64_t since_version = 0;    // nothing is read when the newest version is not newer
+  std::uint32_t chunk_gaussians = 0;  // Gaussians per request (0 = the server's cap)
+};
+
+struct MapGaussians {
+  std::uint64_t version = 0;   // the version read (the newest one when unchanged)
+  std::uint64_t count = 0;     // Gaussians in that version
+  bool unchanged = false;      // no version newer than since_version: records is empty
+  std::vector<std::uint8_t> records;  // [count, kGaussianRecordBytes], docs/protocol.md
+  std::uint32_t requests = 0;  // chunks asked for, restarts included
+};
+
+// One exported Gaussian, unpacked from its record.
+struct GaussianRecord {
+  float mean[3];      // world frame, metres
+  float scale[3];     // standard deviations along the Gaussian's axes (3D filter applied), metres
+  float rotation[4];  // Gaussian -> world, w x y z, unit length to within 1/127
+  std::uint8_t rgb[3];
+  std::uint8_t opacity;  // 3D filter applied, x 255
+};
+GaussianRecord unpack_gaussian(const std::uint8_t* record);
+
 struct ClientOptions {
   std::string prefix = "fslam";        // topic prefix of the deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
@@ -177,6 +206,10 @@ class Client {
   // Segments a map (promptless, or by point, box or text prompts) and waits up to timeout_ms for
   // the labels and the colour render.
   bool segment(const SegmentQuery& query, SegmentOutput* output, int timeout_ms, std::string* why);
+  // Reads a whole map version's Gaussians, chunk by chunk, all from one version; starts again
+  // (up to three times) when the version it read went out of the server's hold meanwhile.
+  bool map_gaussians(const MapGaussiansQuery& query, MapGaussians* output, int timeout_ms,
+                     std::string* why);
   // Saves a map on the server, under its map_dir (`folder` empty: the map's name); `saved_to`
   // gets the server-side folder.
   bool save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
