@@ -137,13 +137,15 @@ run_tests() {
 # synthetic room streamed to it live at 30 Hz, renders requested from poses of the trajectory,
 # promptless and one-click segmentation, the map saved, and the server stopped cleanly (it
 # saves its maps on the way out). Ends with a summary of what it wrote and the figures.
-DEMO_SERVER_PID=""  # global: the EXIT trap runs after run_demo's locals are gone
+DEMO_SERVER_PID="" DEMO_GATEWAY_PID=""  # globals: the EXIT trap runs after run_demo's locals are gone
 stop_demo_server() {
-  if [[ -n "$DEMO_SERVER_PID" ]]; then
-    kill -TERM "$DEMO_SERVER_PID" 2>/dev/null || true
-    wait "$DEMO_SERVER_PID" 2>/dev/null || true
-    DEMO_SERVER_PID=""
-  fi
+  local pid
+  for pid in "$DEMO_GATEWAY_PID" "$DEMO_SERVER_PID"; do
+    [[ -n "$pid" ]] || continue
+    kill -TERM "$pid" 2>/dev/null || true
+    wait "$pid" 2>/dev/null || true
+  done
+  DEMO_SERVER_PID="" DEMO_GATEWAY_PID=""
 }
 
 run_demo() {
@@ -168,6 +170,18 @@ run_demo() {
     >"$OUT/server.log" 2>&1 &
   DEMO_SERVER_PID=$!
   trap stop_demo_server EXIT  # the server is ours: stop it whatever happens below
+  # The browser viewer (docs/viewer.md), on loopback, on a free port.
+  local viewer_url="(no viewer: the page was not bundled; docs/viewer.md)"
+  if [[ -x "$BUILD_DIR/bin/fslam-gateway" && -f "$BUILD_DIR/viewer/index.html" ]]; then
+    rm -f "$OUT/gateway.port"
+    "$BUILD_DIR/bin/fslam-gateway" --prefix "$prefix" --port 0 --port-file "$OUT/gateway.port" \
+      >"$OUT/gateway.log" 2>&1 &
+    DEMO_GATEWAY_PID=$!
+    local i
+    for i in $(seq 50); do [[ -s "$OUT/gateway.port" ]] && break; sleep 0.1; done
+    [[ -s "$OUT/gateway.port" ]] && viewer_url="http://127.0.0.1:$(cat "$OUT/gateway.port")/"
+  fi
+  log "viewer: $viewer_url (open it in a browser while the demo runs: the map grows live)"
 
   log "stream the sequence live at 30 Hz (JPEG colour, PNG depth; the server skips to the newest frame when behind)"
   "$fslam" stream --dataset "$OUT/sequence" --prefix "$prefix" --session demo --map room \
@@ -193,7 +207,13 @@ import json; r = json.load(open('$OUT/stream.json')); ids = r['tracked_frame_ids
   "$fslam" status --prefix "$prefix" | tee "$OUT/status.txt"
   "$fslam" save-map --map room --prefix "$prefix"
 
-  log "stop the server"
+  if [[ -n "${FSLAM_DEMO_KEEP_VIEWER:-}" && -n "$DEMO_GATEWAY_PID" ]]; then
+    log "viewer still serving at $viewer_url (FSLAM_DEMO_KEEP_VIEWER set): press Enter to stop"
+    read -r _ || true
+  fi
+  log "stop the gateway and the server"
+  [[ -n "$DEMO_GATEWAY_PID" ]] && { kill -TERM "$DEMO_GATEWAY_PID"; wait "$DEMO_GATEWAY_PID" || true; }
+  DEMO_GATEWAY_PID=""
   kill -TERM "$DEMO_SERVER_PID"
   wait "$DEMO_SERVER_PID"
   DEMO_SERVER_PID=""
@@ -212,6 +232,7 @@ import json; r = json.load(open('$OUT/stream.json')); ids = r['tracked_frame_ids
   echo "trajectory plot: $OUT/trajectory.png (tracked vs ground truth)"
   echo "evaluation:      $OUT/trajectory_eval.json (ATE, RPE)"
   echo "server:          $OUT/server.log, $OUT/status.txt"
+  echo "viewer:          $viewer_url during the run (FSLAM_DEMO_KEEP_VIEWER=1 keeps it up at the end); $OUT/gateway.log"
   python3 - "$OUT/stream.json" "$OUT/trajectory_eval.json" <<'PY'
 import json, sys
 s, e = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
