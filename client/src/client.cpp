@@ -140,7 +140,14 @@ Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   requests_topic_ = make_topic(participant_, &fslam_proto_Request_desc, prefix, "requests");
   status_topic_ = make_topic(participant_, &fslam_proto_SessionStatus_desc, prefix, "status");
   request_writer_ = make_writer(participant_, requests_topic_, Delivery::reliable);
-  frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
+  try {
+    frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
+  } catch (const DdsError& e) {
+    // DDS Security (configs/dds/secure.xml): a client whose permissions do not let it write
+    // frames may still query maps; push_frame says why it cannot stream.
+    if (e.code() != DDS_RETCODE_NOT_ALLOWED_BY_SECURITY) throw;
+    frames_refused_ = e.what();
+  }
   control_writer_ = make_writer(participant_, control_topic_, Delivery::reliable);
   pose_reader_ = make_reader(participant_, poses_topic_, Delivery::reliable);
   result_reader_ = make_reader(participant_, results_topic_, Delivery::reliable);
@@ -342,7 +349,7 @@ bool Client::map_folder_request(bool save, const std::string& map_name, const st
 
 std::uint32_t Client::matched_servers() const {
   dds_publication_matched_status_t matched{};
-  dds_get_publication_matched_status(frame_writer_.get(), &matched);
+  dds_get_publication_matched_status(frame_writer_ ? frame_writer_.get() : request_writer_.get(), &matched);
   return matched.current_count;
 }
 
@@ -427,6 +434,7 @@ void Client::listen() {
 bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why) {
   const CameraIntrinsics& k = frame.intrinsics;
   if (session.empty()) return fail(why, "push_frame: no session name");
+  if (!frame_writer_) return fail(why, "push_frame: " + frames_refused_);
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
     if (addresses_.count(session) == 0) addresses_.insert(session);

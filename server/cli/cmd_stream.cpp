@@ -14,6 +14,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "client_args.hpp"
 #include "commands.hpp"
 #include "dataset_args.hpp"
 #include "fslam/client/client.hpp"
@@ -31,6 +32,7 @@ struct StreamArgs {
   std::string rate = "max";  // frames per second, or max
   std::string out;
   std::string prefix = "fslam";
+  DiscoveryArgs discovery;
   int timeout_s = 60;        // for the last poses after the last frame
 };
 
@@ -85,8 +87,10 @@ int run_stream(const StreamArgs& args) {
     }
     if (!(rate > 0)) return fail("--rate must be a positive number of frames per second or 'max'");
   }
+  // The instance that serves the map, or creates it (the map directory, docs/deployment.md).
+  const std::string map = args.map.empty() ? args.session : args.map;
   client::ClientOptions copts;
-  copts.prefix = args.prefix;
+  if (!locate_service(args.prefix, args.discovery, map, true, 10000, &copts, &why)) return fail(why);
   client::Client client(copts);
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> poses;
@@ -106,7 +110,7 @@ int run_stream(const StreamArgs& args) {
       std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
     }
   });
-  if (!client.open_session(args.session, args.map.empty() ? args.session : args.map, 10000, &why)) {
+  if (!client.open_session(args.session, map, 10000, &why)) {
     return fail(why);
   }
   const std::size_t n = dataset->size();
@@ -221,7 +225,8 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
   app->add_option("--map", args->map, "Map to create or attach to (default: the session name)");
   app->add_option("--rate", args->rate, "Frames per second, or max")->capture_default_str();
   app->add_option("--out", args->out, "Trajectory of the received poses (TUM)");
-  app->add_option("--prefix", args->prefix, "Topic prefix of the server")->capture_default_str();
+  app->add_option("--prefix", args->prefix, "Topic prefix of the deployment")->capture_default_str();
+  add_discovery_options(app, &args->discovery);
   app->add_option("--timeout", args->timeout_s, "Seconds to wait for the last poses")
       ->capture_default_str();
   commands->push_back({app, [args] { return run_stream(*args); }});

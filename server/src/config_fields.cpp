@@ -318,6 +318,9 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 void add_server_fields(std::vector<ConfigField>* f) {
   const auto server = section(f, "server", [](auto& c) -> auto& { return c; });
   server.add("prefix", &ServerConfig::prefix);
+  server.add("instance", &ServerConfig::instance);
+  server.add("map_group", &ServerConfig::map_group);
+  server.add("health_file", &ServerConfig::health_file);
   server.add("queue_capacity", &ServerConfig::queue_capacity);
   server.add("status_period_ms", &ServerConfig::status_period_ms);
   server.add("map_dir", &ServerConfig::map_dir);
