@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "fslam/server/map_directory.hpp"
+#include "fslam/server/server.hpp"
 #include "test_support.hpp"
 
 namespace fslam::server {
@@ -84,6 +85,18 @@ TEST_F(MapDirectoryMembers, AnInstanceCreatesOnlyTheNewMapsItsGroupTakes) {
   EXPECT_FALSE(a_->may_claim("hall", true, &why));
   EXPECT_NE(why.find("creates only maps matching 'a-*'"), std::string::npos) << why;
   EXPECT_TRUE(b_->may_claim("hall", true, &why)) << why;
+}
+
+TEST(ScaleOutConfig, AnInstanceServesOnATopicSafePrefixOfItsOwn) {
+  ServerConfig config;
+  EXPECT_EQ(config.service_prefix(), "fslam");  // no instance: the single-server layout
+  config.instance = "fslam-0";                   // a Kubernetes pod name
+  EXPECT_EQ(config.service_prefix(), "fslam/fslam_0");
+  std::string why;
+  EXPECT_TRUE(config.is_valid(&why)) << why;
+  config.instance = "a/b";
+  EXPECT_FALSE(config.is_valid(&why));
+  EXPECT_NE(why.find("instance 'a/b'"), std::string::npos) << why;
 }
 
 }  // namespace
