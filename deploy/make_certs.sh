@@ -92,7 +92,7 @@ XML
 # grant NAME SUBJECT PUBLISHED SUBSCRIBED: one grant; topics are the last part of <prefix>/<topic>.
 grant() {
   local topics_xml
-  topics_xml() { for t in $1; do printf '<topic>*/%s</topic>' "$t"; done; }
+  topics_xml() { local t; set -f; for t in $1; do printf '<topic>*/%s</topic>' "$t"; done; set +f; }
   cat <<XML
     <grant name="$1">
       <subject_name>$2</subject_name>
@@ -107,7 +107,7 @@ grant() {
 XML
 }
 
-# write_permissions DIR "server-ids" "client-ids" "observer-ids"
+# write_permissions DIR "server-ids" "client-ids" "observer-ids" ["all-topics-ids"]
 write_permissions() {
   {
     cat <<XML
@@ -122,6 +122,7 @@ XML
     for id in $2; do grant "server_$id" "$(subject_name "$id")" "poses results status maps" "frames session requests maps"; done
     for id in $3; do grant "client_$id" "$(subject_name "$id")" "frames session requests" "poses results status maps"; done
     for id in $4; do grant "observer_$id" "$(subject_name "$id")" "session requests" "poses results status maps"; done
+    for id in ${5:-}; do grant "all_$id" "$(subject_name "$id")" "*" "*"; done
     cat <<XML
   </permissions>
 </dds>
@@ -148,7 +149,7 @@ if [[ $ROGUE -eq 1 ]]; then
   make_identity "$OUT/rogue" intruder
   write_governance "$OUT/rogue"
   # The intruder grants itself everything, under a CA the deployment does not trust.
-  write_permissions "$OUT/rogue" "intruder" "" ""
+  write_permissions "$OUT/rogue" "" "" "" "intruder"
   sign "$OUT/rogue" governance
   sign "$OUT/rogue" permissions
 fi

@@ -133,7 +133,6 @@ void fill_request(RequestStrings* strings, std::uint64_t id, fslam_proto_Request
 Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   participant_ = make_participant(options.domain);
   const std::string& prefix = options.prefix;
-  frames_topic_ = make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
   poses_topic_ = make_topic(participant_, &fslam_proto_PoseStamped_desc, prefix, "poses");
   control_topic_ = make_topic(participant_, &fslam_proto_SessionControl_desc, prefix, "session");
   results_topic_ = make_topic(participant_, &fslam_proto_Result_desc, prefix, "results");
@@ -141,6 +140,7 @@ Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   status_topic_ = make_topic(participant_, &fslam_proto_SessionStatus_desc, prefix, "status");
   request_writer_ = make_writer(participant_, requests_topic_, Delivery::reliable);
   try {
+    frames_topic_ = make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
     frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
   } catch (const DdsError& e) {
     // DDS Security (configs/dds/secure.xml): a client whose permissions do not let it write

@@ -27,6 +27,14 @@ std::uint64_t fnv1a(const std::string& text, std::uint64_t h = 14695981039346656
   return h;
 }
 
+// splitmix64's finaliser: FNV-1a alone leaves the high bits poorly mixed for names that differ
+// only at the end, and rendezvous hashing compares whole weights (maps piled onto one instance).
+std::uint64_t mix(std::uint64_t x) {
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+  return x ^ (x >> 31);
+}
+
 // "a: m1, m2; b: (none)" for error messages.
 std::string describe(const std::vector<MapClaimInfo>& entries) {
   std::map<std::string, std::vector<std::string>> by_instance;
@@ -59,7 +67,7 @@ const MapClaimInfo* place_new_map(const std::vector<MapClaimInfo>& records, cons
   std::uint64_t best_weight = 0;
   for (const MapClaimInfo& r : records) {
     if (!r.map_name.empty() || !map_group_matches(r.map_group, map)) continue;
-    const std::uint64_t weight = fnv1a(map, fnv1a(r.instance + '\0'));
+    const std::uint64_t weight = mix(fnv1a(map, fnv1a(r.instance + '\0')));
     if (!best || weight > best_weight || (weight == best_weight && r.instance < best->instance)) {
       best = &r;
       best_weight = weight;

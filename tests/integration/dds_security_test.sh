@@ -9,25 +9,20 @@
 #
 #   dds_security_test.sh BIN_DIR REPO_ROOT     (exit 77 = skipped)
 set -uo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/../common/script_support.sh"
 BIN="$1" ROOT="$2"
 skip() { echo "SKIPPED: $*"; exit 77; }
 command -v openssl >/dev/null || skip "openssl is not installed"
-ldconfig -p | grep -q libdds_security_auth || skip "Cyclone DDS security plugins (libddsc0debian) not found"
+ls /usr/lib/*/libddsc0debian/libdds_security_auth.so* >/dev/null 2>&1 \
+  || skip "Cyclone DDS security plugins (libdds_security_*.so of libddsc0debian) not found"
 
 WORK="$(mktemp -d /tmp/fslam_security.XXXXXX)"
 PREFIX="sec$$"
-PIDS=()
 cleanup() {
-  for pid in "${PIDS[@]}"; do kill -TERM "$pid" 2>/dev/null; done
-  for pid in "${PIDS[@]}"; do wait "$pid" 2>/dev/null; done
+  stop_started
   rm -rf "$WORK"
 }
 trap cleanup EXIT
-FAILED=0
-check() {
-  local name="$1"; shift
-  if "$@"; then echo "ok: $name"; else echo "FAILED: $name"; FAILED=1; fi
-}
 as() {  # as IDENTITY COMMAND...: a participant of the secure deployment
   local id="$1"; shift
   env CYCLONEDDS_URI="file://$ROOT/configs/dds/secure.xml" FSLAM_DDS_CERTS="$WORK/certs" \
@@ -45,8 +40,7 @@ bash "$ROOT/deploy/make_certs.sh" "$WORK/certs" --rogue >/dev/null || { echo "ma
 as server "$BIN/fslam-server" --prefix "$PREFIX" >"$WORK/server.log" 2>&1 &
 SERVER=$!
 PIDS+=("$SERVER")
-for _ in $(seq 1 200); do grep -q "serving on" "$WORK/server.log" && break; sleep 0.05; done
-check "the secure server starts" grep -q "serving on" "$WORK/server.log"
+check "the secure server starts" wait_for_line "$WORK/server.log" "serving on"
 
 # Eavesdroppers listen for poses and status while the client streams.
 plain "$BIN/fslam_dds_probe" "$PREFIX" 8 >"$WORK/plain_listen.txt" 2>&1 &

@@ -9,6 +9,7 @@
 #
 #   scaleout_netns_test.sh BIN_DIR     (exit 77 = skipped: not root, or no network namespaces)
 set -uo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/../common/script_support.sh"
 BIN="$1"
 FSLAM="$BIN/fslam"
 SERVER="$BIN/fslam-server"
@@ -21,11 +22,9 @@ NS_BR="${TAG}br" NS_A="${TAG}a" NS_B="${TAG}b" NS_C="${TAG}c"
 declare -A ADDR=([a]=10.231.0.1 [b]=10.231.0.2 [c]=10.231.0.3)
 WORK="$(mktemp -d /tmp/fslam_scaleout.XXXXXX)"
 PREFIX="scale$$"
-PIDS=()
 
 cleanup() {
-  for pid in "${PIDS[@]}"; do kill -TERM "$pid" 2>/dev/null; done
-  for pid in "${PIDS[@]}"; do wait "$pid" 2>/dev/null; done
+  stop_started
   for ns in "$NS_A" "$NS_B" "$NS_C" "$NS_BR"; do ip netns del "$ns" 2>/dev/null; done
   rm -rf "$WORK"
 }
@@ -65,11 +64,6 @@ for x in a b c; do
 XML
 done
 
-FAILED=0
-check() {  # check NAME COMMAND...: runs it, fails the test (and goes on) when it fails
-  local name="$1"; shift
-  if "$@"; then echo "ok: $name"; else echo "FAILED: $name"; FAILED=1; fi
-}
 in_ns() {  # in_ns X COMMAND...: runs in namespace X with its profile
   local x="$1"; shift
   ip netns exec "${TAG}$x" env CYCLONEDDS_URI="file://$WORK/dds_$x.xml" "$@"
@@ -80,7 +74,7 @@ start_server() {  # start_server X: instance X, map group 'X-*', maps in $WORK/m
     --map-dir "$WORK/maps_$x" >"$WORK/server_$x.log" 2>&1 &
   PIDS+=($!)
   eval "PID_$x=$!"
-  for _ in $(seq 1 200); do grep -q "serving on" "$WORK/server_$x.log" && return 0; sleep 0.05; done
+  wait_for_line "$WORK/server_$x.log" "serving on" && return 0
   echo "server $x did not start:"; cat "$WORK/server_$x.log"; return 1
 }
 stop_server() {  # stop_server X: SIGTERM, wait (it saves its maps and withdraws its claims)
@@ -132,7 +126,7 @@ stop_server b
 rm -rf "$WORK/maps_b/a-room-copy"
 cp -r "$WORK/maps_a/a-room" "$WORK/maps_b/a-room"
 start_server b || exit 1
-for _ in $(seq 1 100); do grep -q "gave up map 'a-room'" "$WORK/server_b.log" && break; sleep 0.05; done
+wait_for_line "$WORK/server_b.log" "gave up map 'a-room'" 100
 check "b gives up a-room, claimed later than a's claim" grep -q "gave up map 'a-room': it is held by instance 'a'" "$WORK/server_b.log"
 client maps >"$WORK/maps2.txt" 2>&1
 check "directory: a-room held by a alone" bash -c "[[ \$(grep -Ec '^a-room ' $WORK/maps2.txt) == 1 ]] && grep -Eq '^a-room +a ' $WORK/maps2.txt"
