@@ -28,24 +28,24 @@ as() {  # as IDENTITY COMMAND...: a participant of the secure deployment
   env CYCLONEDDS_URI="file://$ROOT/configs/dds/secure.xml" FSLAM_DDS_CERTS="$WORK/certs" \
     FSLAM_DDS_IDENTITY="$id" "$@"
 }
-plain() { env CYCLONEDDS_URI="file://$ROOT/configs/dds/loopback.xml" "$@"; }
-rogue() {
-  env CYCLONEDDS_URI="file://$ROOT/configs/dds/secure.xml" FSLAM_DDS_CERTS="$WORK/certs/rogue" \
-    FSLAM_DDS_IDENTITY=intruder "$@"
-}
 
 bash "$ROOT/deploy/make_certs.sh" "$WORK/certs" --rogue >/dev/null || { echo "make_certs.sh failed"; exit 1; }
 "$BIN/fslam" synth --out "$WORK/seq" --frames 15 --seed 4 >/dev/null 2>&1 || { echo "synth failed"; exit 1; }
 
-as server "$BIN/fslam-server" --prefix "$PREFIX" >"$WORK/server.log" 2>&1 &
+# Background processes are started without the functions above: a backgrounded function is a
+# subshell, and $! would be its PID instead of the program's.
+SECURE="CYCLONEDDS_URI=file://$ROOT/configs/dds/secure.xml FSLAM_DDS_CERTS=$WORK/certs"
+env $SECURE FSLAM_DDS_IDENTITY=server "$BIN/fslam-server" --prefix "$PREFIX" >"$WORK/server.log" 2>&1 &
 SERVER=$!
 PIDS+=("$SERVER")
 check "the secure server starts" wait_for_line "$WORK/server.log" "serving on"
 
 # Eavesdroppers listen for poses and status while the client streams.
-plain "$BIN/fslam_dds_probe" "$PREFIX" 8 >"$WORK/plain_listen.txt" 2>&1 &
+PLAIN="CYCLONEDDS_URI=file://$ROOT/configs/dds/loopback.xml"
+ROGUE="CYCLONEDDS_URI=file://$ROOT/configs/dds/secure.xml FSLAM_DDS_CERTS=$WORK/certs/rogue FSLAM_DDS_IDENTITY=intruder"
+env $PLAIN "$BIN/fslam_dds_probe" "$PREFIX" 8 >"$WORK/plain_listen.txt" 2>&1 &
 PIDS+=($!)
-rogue "$BIN/fslam_dds_probe" "$PREFIX" 8 >"$WORK/rogue_listen.txt" 2>&1 &
+env $ROGUE "$BIN/fslam_dds_probe" "$PREFIX" 8 >"$WORK/rogue_listen.txt" 2>&1 &
 PIDS+=($!)
 as client "$BIN/fslam" stream --dataset "$WORK/seq" --prefix "$PREFIX" --session s --map room \
   >"$WORK/stream.txt" 2>&1
@@ -63,9 +63,9 @@ check "a participant with an untrusted identity gets no poses and no status" \
   grep -qz "poses 0.status 0" "$WORK/rogue_listen.txt"
 
 # Injection: each tries to open a session and push five frames.
-plain "$BIN/fslam_dds_probe" "$PREFIX" 0 plain-session 5 >"$WORK/plain_inject.txt" 2>&1 &
+env $PLAIN "$BIN/fslam_dds_probe" "$PREFIX" 0 plain-session 5 >"$WORK/plain_inject.txt" 2>&1 &
 P1=$!
-rogue "$BIN/fslam_dds_probe" "$PREFIX" 0 rogue-session 5 >"$WORK/rogue_inject.txt" 2>&1 &
+env $ROGUE "$BIN/fslam_dds_probe" "$PREFIX" 0 rogue-session 5 >"$WORK/rogue_inject.txt" 2>&1 &
 P2=$!
 as observer "$BIN/fslam_dds_probe" "$PREFIX" 0 observer-session 5 >"$WORK/observer_inject.txt" 2>&1
 as observer "$BIN/fslam" stream --dataset "$WORK/seq" --frames 0:3 --prefix "$PREFIX" \

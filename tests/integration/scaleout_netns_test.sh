@@ -70,8 +70,9 @@ in_ns() {  # in_ns X COMMAND...: runs in namespace X with its profile
 }
 start_server() {  # start_server X: instance X, map group 'X-*', maps in $WORK/maps_X
   local x="$1"
-  in_ns "$x" "$SERVER" --prefix "$PREFIX" --instance "$x" --map-group "$x-*" \
-    --map-dir "$WORK/maps_$x" >"$WORK/server_$x.log" 2>&1 &
+  # Not through in_ns: a backgrounded function is a subshell, and $! would be its PID.
+  ip netns exec "${TAG}$x" env CYCLONEDDS_URI="file://$WORK/dds_$x.xml" "$SERVER" --prefix "$PREFIX" \
+    --instance "$x" --map-group "$x-*" --map-dir "$WORK/maps_$x" >"$WORK/server_$x.log" 2>&1 &
   PIDS+=($!)
   eval "PID_$x=$!"
   wait_for_line "$WORK/server_$x.log" "serving on" && return 0
