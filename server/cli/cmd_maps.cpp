@@ -29,11 +29,12 @@ struct StatusArgs {
   double seconds = 2.5;  // listen this long: status is published once a second
 };
 
-// The service prefixes of the deployment's instances (one with --instance).
-std::set<std::string> service_prefixes(const ClientArgs& args) {
+// The service prefixes of the deployment's instances (one with --instance), discovered within
+// timeout_ms.
+std::set<std::string> service_prefixes(const ClientArgs& args, int timeout_ms) {
   const client::MapDirectory directory(args.prefix, DDS_DOMAIN_DEFAULT);
   std::set<std::string> prefixes;
-  for (const client::MapClaimInfo& e : directory.discover(args.discovery.settle_ms, args.timeout_ms())) {
+  for (const client::MapClaimInfo& e : directory.discover(args.discovery.settle_ms, timeout_ms)) {
     if (e.map_name.empty() && (args.discovery.instance.empty() || e.instance == args.discovery.instance)) {
       prefixes.insert(e.service_prefix);
     }
@@ -44,7 +45,9 @@ std::set<std::string> service_prefixes(const ClientArgs& args) {
 int run_status(const StatusArgs& args) {
   // One client per instance: each serves its status on its own prefix.
   std::vector<std::unique_ptr<client::Client>> clients;
-  for (const std::string& prefix : service_prefixes(args.client)) {
+  // As before the map directory: no server within --seconds is "no status".
+  const int discovery_ms = std::max(500, static_cast<int>(args.seconds * 1000.0));
+  for (const std::string& prefix : service_prefixes(args.client, discovery_ms)) {
     client::ClientOptions options;
     options.prefix = prefix;
     clients.push_back(std::make_unique<client::Client>(options));
