@@ -10,6 +10,8 @@
 #          --build-dir DIR (default build)  --jobs N (default: all cores)
 #          --cuda AUTO|ON|OFF (default AUTO: the CUDA backend is built when nvcc is found)
 #          --out DIR (demo output, default out/demo)  --no-install (skip apt)
+#          --k8s-check (also: node + npm ci in deploy/k8s/validate, for the Kubernetes manifest
+#          test; containers are deploy/test_containers.sh, opt-in and separate)
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -19,6 +21,7 @@ JOBS="$(nproc)"
 CUDA=AUTO
 OUT="$ROOT/out/demo"
 INSTALL=1
+K8S_CHECK=0
 
 usage() { awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
 
@@ -33,6 +36,7 @@ while [[ $# -gt 0 ]]; do
     --cuda) CUDA="$2"; shift ;;
     --out) OUT="$(realpath -m "$2")"; shift ;;
     --no-install) INSTALL=0 ;;
+    --k8s-check) K8S_CHECK=1 ;;
     -h|--help) usage; exit 0 ;;
     *) echo "setup.sh: unknown option '$1'" >&2; usage >&2; exit 2 ;;
   esac
@@ -50,6 +54,7 @@ PACKAGES=(
   libpng-dev  # the client writes depth PNGs itself (client/src/depth_png.hpp)
   libboost-dev  # Boost.Beast (headers only): fslam-gateway's HTTP + WebSocket (docs/viewer.md)
   python3-onnx  # tests only: writes the tiny ONNX models of the onnx feature encoder's tests
+  openssl iproute2  # tests only: DDS Security certificates, network namespaces of the scale-out test
 )
 
 # The browser viewer's page is bundled with npm (bundle_viewer); its end-to-end test drives Debian's
@@ -244,7 +249,22 @@ print(f"\nfigures: {s['tracked']} of {s['frames_sent']} frames tracked, {s['skip
 PY
 }
 
+# Opt-in: the offline schema check of deploy/k8s needs node and two npm packages (locked in
+# deploy/k8s/validate/package-lock.json); fetched here once, never at test time.
+install_k8s_check() {
+  if ! command -v npm >/dev/null; then
+    [[ $INSTALL -eq 1 ]] || { echo "setup.sh: --k8s-check needs npm (or drop --no-install)" >&2; exit 1; }
+    PACKAGES=(nodejs npm)
+    install_packages
+  fi
+  if [[ ! -d "$ROOT/deploy/k8s/validate/node_modules/kubernetes-models" ]]; then
+    log "npm ci in deploy/k8s/validate (kubernetes-models, yaml)"
+    npm ci --prefix "$ROOT/deploy/k8s/validate" --no-audit --no-fund
+  fi
+}
+
 [[ $INSTALL -eq 1 ]] && install_packages
+[[ $K8S_CHECK -eq 1 ]] && install_k8s_check
 [[ "$MODE" == install ]] && exit 0
 [[ $INSTALL -eq 1 && "$MODE" == test ]] && install_missing "${TEST_PACKAGES[@]}"
 build

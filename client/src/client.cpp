@@ -137,14 +137,21 @@ void fill_request(RequestStrings* strings, std::uint64_t id, fslam_proto_Request
 Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   participant_ = make_participant(options.domain);
   const std::string& prefix = options.prefix;
-  frames_topic_ = make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
   poses_topic_ = make_topic(participant_, &fslam_proto_PoseStamped_desc, prefix, "poses");
   control_topic_ = make_topic(participant_, &fslam_proto_SessionControl_desc, prefix, "session");
   results_topic_ = make_topic(participant_, &fslam_proto_Result_desc, prefix, "results");
   requests_topic_ = make_topic(participant_, &fslam_proto_Request_desc, prefix, "requests");
   status_topic_ = make_topic(participant_, &fslam_proto_SessionStatus_desc, prefix, "status");
   request_writer_ = make_writer(participant_, requests_topic_, Delivery::reliable);
-  frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
+  try {
+    frames_topic_ = make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
+    frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
+  } catch (const DdsError& e) {
+    // DDS Security (configs/dds/secure.xml): a client whose permissions do not let it write
+    // frames may still query maps; push_frame says why it cannot stream.
+    if (e.code() != DDS_RETCODE_NOT_ALLOWED_BY_SECURITY) throw;
+    frames_refused_ = e.what();
+  }
   control_writer_ = make_writer(participant_, control_topic_, Delivery::reliable);
   pose_reader_ = make_reader(participant_, poses_topic_, Delivery::reliable);
   result_reader_ = make_reader(participant_, results_topic_, Delivery::reliable);
@@ -426,7 +433,7 @@ bool Client::map_folder_request(bool save, const std::string& map_name, const st
 
 std::uint32_t Client::matched_servers() const {
   dds_publication_matched_status_t matched{};
-  dds_get_publication_matched_status(frame_writer_.get(), &matched);
+  dds_get_publication_matched_status(frame_writer_ ? frame_writer_.get() : request_writer_.get(), &matched);
   return matched.current_count;
 }
 
@@ -524,6 +531,7 @@ void Client::listen() {
 bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why) {
   const CameraIntrinsics& k = frame.intrinsics;
   if (session.empty()) return fail(why, "push_frame: no session name");
+  if (!frame_writer_) return fail(why, "push_frame: " + frames_refused_);
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
     if (addresses_.count(session) == 0) addresses_.insert(session);

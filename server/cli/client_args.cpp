@@ -6,14 +6,46 @@
 
 #include <CLI/CLI.hpp>
 
+#include "fslam/client/map_directory.hpp"
 #include "fslam/core/io/text_tables.hpp"
 
 namespace fslam::cli {
 
+void add_discovery_options(CLI::App* app, DiscoveryArgs* args) {
+  app->add_option("--instance", args->instance,
+                  "Talk to this server instance (default: the one the map directory names)");
+  app->add_option("--discovery-ms", args->settle_ms,
+                  "Map directory: decide this long after the last server instance was discovered")
+      ->capture_default_str();
+}
+
 void add_client_options(CLI::App* app, ClientArgs* args) {
-  app->add_option("--prefix", args->prefix, "Topic prefix of the server")->capture_default_str();
+  app->add_option("--prefix", args->prefix, "Topic prefix of the deployment")->capture_default_str();
   app->add_option("--timeout", args->timeout_s, "Seconds to wait for the server's answer")
       ->capture_default_str();
+  add_discovery_options(app, &args->discovery);
+}
+
+bool locate_service(const std::string& prefix, const DiscoveryArgs& discovery, const std::string& map,
+                    bool allow_new, int timeout_ms, client::ClientOptions* options, std::string* why) {
+  const client::MapDirectory directory(prefix, options->domain);
+  std::string service;
+  if (!discovery.instance.empty()) {
+    // The instance's own record says where it serves.
+    for (const client::MapClaimInfo& e : directory.discover(discovery.settle_ms, timeout_ms)) {
+      if (e.map_name.empty() && e.instance == discovery.instance) service = e.service_prefix;
+    }
+    if (service.empty()) {
+      *why = "no server instance '" + discovery.instance + "' on prefix '" + prefix + "'";
+      return false;
+    }
+  } else {
+    client::MapLocation location;
+    if (!directory.locate(map, allow_new, discovery.settle_ms, timeout_ms, &location, why)) return false;
+    service = location.service_prefix;
+  }
+  options->prefix = service;
+  return true;
 }
 
 bool parse_numbers(const std::string& text, const std::string& flag, std::vector<double>* values,

@@ -12,18 +12,34 @@ class App;
 
 namespace fslam::cli {
 
-struct ClientArgs {
-  std::string prefix = "fslam";  // the server's topic prefix
-  int timeout_s = 30;            // per request, including discovery of the server
-
-  client::ClientOptions options() const {
-    client::ClientOptions o;
-    o.prefix = prefix;
-    return o;
-  }
-  int timeout_ms() const { return timeout_s * 1000; }
+// How a command finds the server instance of its map in the deployment's map directory
+// (docs/deployment.md "Scale-out"): --instance, --discovery-ms.
+struct DiscoveryArgs {
+  std::string instance;  // talk to this instance, whatever the directory says of the map
+  int settle_ms = 500;   // directory discovery ends this long after the last new instance
 };
 
+void add_discovery_options(CLI::App* app, DiscoveryArgs* args);
+
+// The client options for talking about `map` on deployment `prefix`: the service prefix of the
+// instance that serves it, or (allow_new) of the instance that creates it. False with `why` when
+// no instance serves the map (nor would create it), or no server answered within timeout_ms.
+bool locate_service(const std::string& prefix, const DiscoveryArgs& discovery, const std::string& map,
+                    bool allow_new, int timeout_ms, client::ClientOptions* options, std::string* why);
+
+struct ClientArgs {
+  std::string prefix = "fslam";  // the deployment's topic prefix
+  int timeout_s = 30;            // per request, including discovery of the server
+  DiscoveryArgs discovery;
+
+  int timeout_ms() const { return timeout_s * 1000; }
+  bool locate(const std::string& map, bool allow_new, client::ClientOptions* options,
+              std::string* why) const {
+    return locate_service(prefix, discovery, map, allow_new, timeout_ms(), options, why);
+  }
+};
+
+// --prefix, --timeout and the discovery options.
 void add_client_options(CLI::App* app, ClientArgs* args);
 
 // "a,b,c" -> finite numbers; `why` names `flag`.

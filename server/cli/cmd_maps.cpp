@@ -1,7 +1,12 @@
-// Map commands against a running server: `fslam status` (what it serves and how each session is
-// doing), `fslam save-map` and `fslam load-map` (persistence under the server's --map-dir).
+// Map commands against running servers: `fslam status` (what they serve and how each session is
+// doing), `fslam maps` (the deployment's map directory: which instance serves which map),
+// `fslam save-map` and `fslam load-map` (persistence under a server's --map-dir).
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <ctime>
+#include <set>
+#include <vector>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -14,6 +19,7 @@
 #include "client_args.hpp"
 #include "commands.hpp"
 #include "fslam/client/client.hpp"
+#include "fslam/client/map_directory.hpp"
 
 namespace fslam::cli {
 namespace {
@@ -23,14 +29,37 @@ struct StatusArgs {
   double seconds = 2.5;  // listen this long: status is published once a second
 };
 
+// The service prefixes of the deployment's instances (one with --instance), discovered within
+// timeout_ms.
+std::set<std::string> service_prefixes(const ClientArgs& args, int timeout_ms) {
+  const client::MapDirectory directory(args.prefix, DDS_DOMAIN_DEFAULT);
+  std::set<std::string> prefixes;
+  for (const client::MapClaimInfo& e : directory.discover(args.discovery.settle_ms, timeout_ms)) {
+    if (e.map_name.empty() && (args.discovery.instance.empty() || e.instance == args.discovery.instance)) {
+      prefixes.insert(e.service_prefix);
+    }
+  }
+  return prefixes;
+}
+
 int run_status(const StatusArgs& args) {
-  client::Client client(args.client.options());
+  // One client per instance: each serves its status on its own prefix.
+  std::vector<std::unique_ptr<client::Client>> clients;
+  // As before the map directory: no server within --seconds is "no status".
+  const int discovery_ms = std::max(500, static_cast<int>(args.seconds * 1000.0));
+  for (const std::string& prefix : service_prefixes(args.client, discovery_ms)) {
+    client::ClientOptions options;
+    options.prefix = prefix;
+    clients.push_back(std::make_unique<client::Client>(options));
+  }
   std::mutex mutex;
   std::map<std::pair<std::string, std::string>, client::StatusUpdate> latest;
-  client.on_status([&](const client::StatusUpdate& s) {
-    std::lock_guard<std::mutex> lock(mutex);
-    latest[{s.map_name, s.session}] = s;
-  });
+  for (auto& client : clients) {
+    client->on_status([&](const client::StatusUpdate& s) {
+      std::lock_guard<std::mutex> lock(mutex);
+      latest[{s.map_name, s.session}] = s;
+    });
+  }
   std::this_thread::sleep_for(std::chrono::duration<double>(args.seconds));
   std::lock_guard<std::mutex> lock(mutex);
   if (latest.empty()) {
@@ -70,18 +99,59 @@ struct MapFileArgs {
 };
 
 int run_save(const MapFileArgs& args) {
-  client::Client client(args.client.options());
   std::string why, folder;
+  client::ClientOptions options;
+  if (!args.client.locate(args.map, false, &options, &why)) return fail(why);
+  client::Client client(options);
   if (!client.save_map(args.map, args.folder, args.client.timeout_ms(), &folder, &why)) return fail(why);
   std::printf("saved map '%s' to %s (on the server)\n", args.map.c_str(), folder.c_str());
   return 0;
 }
 
 int run_load(const MapFileArgs& args) {
-  client::Client client(args.client.options());
   std::string why;
+  // A map no instance serves yet goes where a new map of that name would (or to --instance).
+  client::ClientOptions options;
+  if (!args.client.locate(args.map, true, &options, &why)) return fail(why);
+  client::Client client(options);
   if (!client.load_map(args.map, args.folder, args.client.timeout_ms(), &why)) return fail(why);
   std::printf("the server now serves '%s'\n", args.map.c_str());
+  return 0;
+}
+
+struct DirectoryArgs {
+  ClientArgs client;
+};
+
+int run_maps(const DirectoryArgs& args) {
+  const client::MapDirectory directory(args.client.prefix, DDS_DOMAIN_DEFAULT);
+  const std::vector<client::MapClaimInfo> entries =
+      directory.discover(args.client.discovery.settle_ms, args.client.timeout_ms());
+  std::map<std::string, client::MapClaimInfo> records;
+  std::map<std::string, std::vector<client::MapClaimInfo>> claims;  // map -> claims, holder first
+  for (const client::MapClaimInfo& e : entries) {
+    if (e.map_name.empty()) records[e.instance] = e;
+    else claims[e.map_name].push_back(e);
+  }
+  if (records.empty()) {
+    return fail("no featureslam server found on prefix '" + args.client.prefix + "'");
+  }
+  std::printf("%-24s %-32s %s\n", "instance", "serves on prefix", "creates new maps matching");
+  for (const auto& [name, r] : records) {
+    std::printf("%-24s %-32s %s\n", name.c_str(), r.service_prefix.c_str(),
+                r.map_group.empty() ? "(none)" : r.map_group.c_str());
+  }
+  std::printf("\n%-24s %-24s %s\n", "map", "instance", "claimed (UTC)");
+  for (auto& [map, list] : claims) {
+    std::sort(list.begin(), list.end(), client::claim_precedes);
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      const std::time_t t = static_cast<std::time_t>(list[i].claimed_at_ns / 1000000000ull);
+      char when[32];
+      std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&t));
+      std::printf("%-24s %-24s %s%s\n", map.c_str(), list[i].instance.c_str(), when,
+                  i == 0 ? "" : "  (giving it up: claimed later)");
+    }
+  }
   return 0;
 }
 
@@ -94,6 +164,11 @@ void add_map_commands(CLI::App& root, CommandList* commands) {
   status->add_option("--seconds", status_args->seconds, "Listen for status this long")
       ->capture_default_str();
   commands->push_back({status, [status_args] { return run_status(*status_args); }});
+
+  auto* maps = root.add_subcommand("maps", "Show the map directory: server instances and the maps each serves");
+  auto maps_args = std::make_shared<DirectoryArgs>();
+  add_client_options(maps, &maps_args->client);
+  commands->push_back({maps, [maps_args] { return run_maps(*maps_args); }});
 
   auto* save = root.add_subcommand("save-map", "Save a map on the server (under its --map-dir)");
   auto save_args = std::make_shared<MapFileArgs>();

@@ -79,7 +79,9 @@ int render_from_server(const RenderArgs& args, const std::vector<std::uint32_t>&
   query.channels = 0;
   for (std::uint32_t bit : bits) query.channels |= bit;
   query.depth_scale = 1000.0f;
-  client::Client client(args.client.options());
+  client::ClientOptions options;
+  if (!args.client.locate(args.map, false, &options, &why)) return fail(why);
+  client::Client client(options);
   client::RenderOutput out;
   if (!client.render(query, &out, args.client.timeout_ms(), &why)) return fail(why);
   std::vector<cv::Mat> panels;

@@ -109,7 +109,9 @@ int run_segment(const SegmentArgs& args) {
     query.mode = client::SegmentMode::text;
     query.text = args.text;
   }
-  client::Client client(args.client.options());
+  client::ClientOptions options;
+  if (!args.client.locate(args.map, false, &options, &why)) return fail(why);
+  client::Client client(options);
   client::SegmentOutput out;
   if (!client.segment(query, &out, args.client.timeout_ms(), &why)) return fail(why);
 

@@ -17,6 +17,7 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include "client_args.hpp"
 #include "commands.hpp"
 #include "dataset_args.hpp"
 #include "fslam/client/client.hpp"
@@ -36,6 +37,7 @@ struct StreamArgs {
   std::string report;        // JSON summary
   std::string prefix = "fslam";
   std::string policy = "server";  // live, queue, or the server's default
+  DiscoveryArgs discovery;
   int timeout_s = 60;        // for the last poses after the last frame
 };
 
@@ -115,8 +117,10 @@ int run_stream(const StreamArgs& args) {
   if (args.policy == "live") session_options.policy = client::FramePolicy::live;
   else if (args.policy == "queue") session_options.policy = client::FramePolicy::queue;
   else if (args.policy != "server") return fail("--policy must be live, queue or server");
+  // The instance that serves the map, or creates it (the map directory, docs/deployment.md).
+  const std::string map = args.map.empty() ? args.session : args.map;
   client::ClientOptions copts;
-  copts.prefix = args.prefix;
+  if (!locate_service(args.prefix, args.discovery, map, true, 10000, &copts, &why)) return fail(why);
   client::Client client(copts);
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> poses;
@@ -141,8 +145,7 @@ int run_stream(const StreamArgs& args) {
       std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
     }
   });
-  if (!client.open_session(args.session, args.map.empty() ? args.session : args.map, 10000, &why,
-                           session_options)) {
+  if (!client.open_session(args.session, map, 10000, &why, session_options)) {
     return fail(why);
   }
   const std::size_t n = dataset->size();
@@ -287,7 +290,8 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
   app->add_option("--out", args->out, "Trajectory of the received poses (TUM)");
   app->add_option("--report", args->report,
                   "JSON summary: frames sent / tracked / skipped / errors, ATE, latency by stage");
-  app->add_option("--prefix", args->prefix, "Topic prefix of the server")->capture_default_str();
+  app->add_option("--prefix", args->prefix, "Topic prefix of the deployment")->capture_default_str();
+  add_discovery_options(app, &args->discovery);
   app->add_option("--policy", args->policy,
                   "Frame policy of the session: live (track the newest frame, skip older ones "
                   "waiting), queue (track every frame), or the server's default")

@@ -319,6 +319,9 @@ void add_server_fields(std::vector<ConfigField>* f) {
   const auto server = section(f, "server", [](auto& c) -> auto& { return c; });
   server.add("prefix", &ServerConfig::prefix);
   server.add("frame_policy", &ServerConfig::frame_policy);
+  server.add("instance", &ServerConfig::instance);
+  server.add("map_group", &ServerConfig::map_group);
+  server.add("health_file", &ServerConfig::health_file);
   server.add("queue_capacity", &ServerConfig::queue_capacity);
   server.add("mapping_threads", &ServerConfig::mapping_threads);
   server.add("pipelined_tracking", &ServerConfig::pipelined_tracking);

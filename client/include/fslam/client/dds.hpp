@@ -51,9 +51,11 @@ class Entity {
 // that is always configs/dds/loopback.xml (see docs/protocol.md).
 Entity make_participant(dds_domainid_t domain);
 
-// featureslam's two kinds of delivery (docs/protocol.md): reliable with the last 64 samples per
-// instance (frames, poses, session control, requests, results), or best effort (status).
-enum class Delivery { reliable, best_effort };
+// featureslam's kinds of delivery (docs/protocol.md): reliable with the last 64 samples per
+// instance (frames, poses, session control, requests, results), best effort (status), or
+// durable: reliable, transient-local, the last sample per instance, so that a reader that joins
+// later still gets the current state (the map directory).
+enum class Delivery { reliable, best_effort, durable };
 
 // Topic <prefix>/<name> of type `desc` (every topic is created with reliable QoS; readers and
 // writers choose their own).

@@ -28,6 +28,9 @@
 
 namespace fslam::server {
 
+class HealthFile;
+class MapDirectoryMember;
+
 inline core::PipelineConfig realtime_pipeline() {
   core::PipelineConfig c;
   c.realtime = true;
@@ -44,6 +47,14 @@ struct DatasetSettings {
 
 struct ServerConfig {
   std::string prefix = "fslam";                 // topic prefix of this deployment
+  // Scale-out (docs/deployment.md): the instance's name in the deployment's map directory
+  // (<prefix>/maps). Set, the instance serves on service_prefix() = <prefix>/<instance>/...;
+  // empty, it serves on <prefix>/... and is listed as <host>-<pid>.
+  std::string instance;
+  std::string map_group = "*";                  // glob of the new map names it creates; "" = none
+  // Written every status period while the server serves, removed when it stops: readiness and
+  // liveness probes look at it (deploy/k8s). Empty: none.
+  std::string health_file;
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;
   // Frame policy of sessions that do not choose one: "live" or "queue" (docs/protocol.md).
   std::string frame_policy = "live";
@@ -71,6 +82,14 @@ struct ServerConfig {
   core::PipelineConfig pipeline = realtime_pipeline();
   DatasetSettings dataset;
   bool is_valid(std::string* why = nullptr) const;
+  // The prefix of the instance's own topics (frames, poses, session, requests, results, status):
+  // <prefix>/<instance> with '-' as '_' (Cyclone refuses '-' in topic names; pod names have it).
+  std::string service_prefix() const {
+    std::string topic_safe = instance;
+    for (char& c : topic_safe)
+      if (c == '-') c = '_';
+    return instance.empty() ? prefix : prefix + "/" + topic_safe;
+  }
   GroundingConfig grounding() const {
     return {grounding_model, grounding_input_size, grounding_box_threshold};
   }
@@ -142,6 +161,9 @@ class Server {
   void publish_status();
   void finish_session(Session* session);
   void log(const std::string& message) const;
+  // Scale-out (map_directory.hpp): stop serving a map another instance holds by the claim rule;
+  // its streaming session, if any, is closed with an error result saying why.
+  void withdraw_map(const std::string& name, const std::string& reason);
 
   ServerConfig config_;
   bool configured_ = false;
@@ -154,6 +176,8 @@ class Server {
   std::atomic<bool> stop_{false};
   std::shared_ptr<const core::Rasterizer> query_rasterizer_;
   std::unique_ptr<GroundingDetector> grounding_;  // null without server.grounding_model
+  std::unique_ptr<MapDirectoryMember> directory_;  // while active
+  std::unique_ptr<HealthFile> health_;             // null without server.health_file
 
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, std::shared_ptr<MapEntry>> maps_;

@@ -1,0 +1,25 @@
+# Shared by the script tests in tests/integration (sourced): a check that records a failure and
+# goes on, so that one run shows every broken check, and the end of the processes a test started
+# (by the PIDs it recorded in PIDS, never by name).
+FAILED=0
+PIDS=()
+
+# check NAME COMMAND...: runs COMMAND; prints ok or FAILED with NAME.
+check() {
+  local name="$1"; shift
+  if "$@"; then echo "ok: $name"; else echo "FAILED: $name"; FAILED=1; fi
+}
+
+# SIGTERM to every recorded process, then wait for each (servers save and withdraw on the way out).
+stop_started() {
+  local pid
+  for pid in "${PIDS[@]}"; do kill -TERM "$pid" 2>/dev/null; done
+  for pid in "${PIDS[@]}"; do wait "$pid" 2>/dev/null; done
+}
+
+# wait_for_line FILE TEXT [TENTHS]: until FILE holds TEXT (default 20 s); false when it never does.
+wait_for_line() {
+  local i
+  for i in $(seq 1 "${3:-200}"); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.1; done
+  return 1
+}
