@@ -160,11 +160,13 @@ client() {  # client NAME SCRIPT: a client container in the pod; output in $RUN/
 }
 log "client container: synthetic room ($FRAMES frames), stream, render, save"
 client stream "fslam synth --out /tmp/room --frames $FRAMES --seed 2 \
-  && fslam stream --dataset /tmp/room --prefix $PREFIX --session room --map room --out /out/trajectory.txt \
+  && fslam stream --dataset /tmp/room --prefix $PREFIX --session room --map room --policy queue \
+       --out /out/trajectory.txt --report /out/stream.json \
   && fslam render --map room --frame $((FRAMES / 2)) --prefix $PREFIX --out /out/before_restart.png \
   && fslam save-map --map room --prefix $PREFIX"
-grep -E "poses received|ATE" "$RUN/stream.txt"
-grep -q "frames sent $FRAMES, poses received $FRAMES," "$RUN/stream.txt" \
+grep -E "frames sent|ATE" "$RUN/stream.txt"
+python3 -c 'import json, sys; r = json.load(open(sys.argv[1])); sys.exit(r["tracked"] != int(sys.argv[2]))' \
+  "$RUN/stream.json" "$FRAMES" \
   || { echo "FAILED: not every pose arrived"; exit 1; }
 [[ -s "$RUN/before_restart.png" ]] || { echo "FAILED: no render"; exit 1; }
 

@@ -21,6 +21,8 @@ while [[ $# -gt 0 ]]; do
   esac
   shift
 done
+# shellcheck source=../common/script_support.sh
+source "$ROOT/tests/common/script_support.sh"  # tracked_all
 WORK="$(mktemp -d /tmp/fslam_secbench.XXXXXX)"
 SERVER_PID=""
 cleanup() { [[ -n "$SERVER_PID" ]] && kill -TERM "$SERVER_PID" 2>/dev/null; wait 2>/dev/null; rm -rf "$WORK"; }
@@ -42,12 +44,12 @@ run() {  # run PROFILE INDEX RATE
   SERVER_PID=$!
   for _ in $(seq 1 200); do grep -q "serving on" "$WORK/server.log" && break; sleep 0.05; done
   env $(profile_env "$1" client) "$BIN/fslam" stream --dataset "$WORK/seq" --prefix "$prefix" \
-    --session s --map "m$2" --rate "$3" >"$WORK/stream.txt" 2>&1
+    --session s --map "m$2" --rate "$3" --policy queue --report "$WORK/stream.json" >"$WORK/stream.txt" 2>&1
   kill -TERM "$SERVER_PID"; wait "$SERVER_PID" 2>/dev/null; SERVER_PID=""
   local fps p50 p99
-  fps=$(sed -n 's/.*(\([0-9.]*\) frames\/s).*/\1/p' "$WORK/stream.txt")
+  fps=$(sed -n 's/.*(\([0-9.]*\) tracked frames\/s).*/\1/p' "$WORK/stream.txt")
   read -r p50 p99 < <(awk '/frame -> pose \(client clock\)/ { print $(NF-1), $NF }' "$WORK/stream.txt")
-  grep -q "poses received $FRAMES" "$WORK/stream.txt" || { echo "run $1 $2: not every pose came back"; cat "$WORK/stream.txt"; exit 1; }
+  tracked_all "$WORK/stream.json" "$FRAMES" || { echo "run $1 $2: not every pose came back"; cat "$WORK/stream.txt"; exit 1; }
   if [[ $3 == max ]]; then
     FPS[$1]+="$fps "
     printf '%-7s run %d, full speed: %6.1f frames/s\n' "$1" "$2" "$fps"

@@ -23,3 +23,14 @@ wait_for_line() {
   for i in $(seq 1 "${3:-200}"); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.1; done
   return 1
 }
+
+# tracked_all REPORT N: the JSON report of `fslam stream --report REPORT` says all N frames were
+# sent and tracked (none skipped, in error or unanswered).
+tracked_all() {
+  python3 - "$1" "$2" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+n = int(sys.argv[2])
+sys.exit(0 if r.get("frames_sent") == n and r.get("tracked") == n else 1)
+PY
+}

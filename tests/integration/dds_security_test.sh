@@ -48,8 +48,8 @@ PIDS+=($!)
 env $ROGUE "$BIN/fslam_dds_probe" "$PREFIX" 8 >"$WORK/rogue_listen.txt" 2>&1 &
 PIDS+=($!)
 as client "$BIN/fslam" stream --dataset "$WORK/seq" --prefix "$PREFIX" --session s --map room \
-  >"$WORK/stream.txt" 2>&1
-check "secure client -> server: every pose back" grep -q "poses received 15" "$WORK/stream.txt"
+  --policy queue --report "$WORK/stream.json" >"$WORK/stream.txt" 2>&1
+check "secure client -> server: every pose back" tracked_all "$WORK/stream.json" 15
 as client "$BIN/fslam" render --map room --frame 7 --prefix "$PREFIX" --out "$WORK/client.png" \
   >"$WORK/render.txt" 2>&1
 check "secure client renders the map" test -s "$WORK/client.png"

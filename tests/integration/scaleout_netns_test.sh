@@ -89,11 +89,12 @@ start_server a || exit 1
 start_server b || exit 1
 
 # A map on b, then a stream into a map on a while the client renders the map on b.
-client stream --dataset "$WORK/seq" --frames 0:20 --session sb --map b-room >"$WORK/stream_b.txt" 2>&1
+client stream --dataset "$WORK/seq" --frames 0:20 --session sb --map b-room --policy queue \
+  --report "$WORK/stream_b.json" >"$WORK/stream_b.txt" 2>&1
 check "stream 20 frames into b-room (placed on instance b): every pose back" \
-  grep -q 'poses received 20' "$WORK/stream_b.txt"
+  tracked_all "$WORK/stream_b.json" 20
 client stream --dataset "$WORK/seq" --frames 0:30 --session sa --map a-room --rate 15 \
-  >"$WORK/stream_a.txt" 2>&1 &
+  --policy queue --report "$WORK/stream_a.json" >"$WORK/stream_a.txt" 2>&1 &
 STREAM_PID=$!
 sleep 1
 check "render b-room (on b) while a-room streams into a" \
@@ -101,7 +102,7 @@ check "render b-room (on b) while a-room streams into a" \
 check "the render is a PNG" test -s "$WORK/b_room_10.png"
 wait "$STREAM_PID"
 check "stream 30 frames into a-room (placed on instance a): every pose back" \
-  grep -q 'poses received 30' "$WORK/stream_a.txt"
+  tracked_all "$WORK/stream_a.json" 30
 check "render a-room (on a)" client render --map a-room --frame 29 --out "$WORK/a_room_29.png"
 
 client maps >"$WORK/maps.txt" 2>&1
