@@ -96,6 +96,10 @@ struct EnumCodec {
 const EnumNames<core::FeatureBackend> kFeatureBackends = {{core::FeatureBackend::builtin, "builtin"},
                                                           {core::FeatureBackend::onnx, "onnx"}};
 
+const EnumNames<core::TrackingTarget> kTrackingTargets = {{core::TrackingTarget::points, "points"},
+                                                          {core::TrackingTarget::gaussians, "gaussians"}};
+const EnumNames<core::MapperConfig::InsertFrom> kInsertFrom = {
+    {core::MapperConfig::InsertFrom::lattice, "lattice"}, {core::MapperConfig::InsertFrom::source, "source"}};
 const EnumNames<core::RobustKernel> kRobustKernels = {{core::RobustKernel::none, "none"},
                                                       {core::RobustKernel::huber, "huber"},
                                                       {core::RobustKernel::cauchy, "cauchy"}};
@@ -163,6 +167,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   tracker.add("constant_velocity", &Tracker::constant_velocity);
   tracker.add("refresh_features", &Tracker::refresh_features);
   tracker.add("parallel", &Tracker::parallel);
+  tracker.add("target", &Tracker::target, kTrackingTargets);
 
   using Preprocess = core::PreprocessConfig;
   const auto pre = section(f, "tracker.preprocess",
@@ -199,6 +204,13 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   local.add("max_points_per_voxel", &LocalMap::max_points_per_voxel);
   local.add("radius", &LocalMap::radius);
 
+  using MapTarget = core::MapTargetConfig;
+  const auto map_target = section(f, "tracker.map_target",
+                                  [](auto& c) -> auto& { return c.pipeline.tracker.map_target; });
+  map_target.add("min_opacity", &MapTarget::min_opacity);
+  map_target.add("min_point_distance", &MapTarget::min_point_distance);
+  map_target.add("unit_discs", &MapTarget::unit_discs);
+
   using Gicp = core::GicpConfig;
   const auto gicp = section(f, "tracker.gicp", [](auto& c) -> auto& { return c.pipeline.tracker.gicp; });
   gicp.add("max_iterations", &Gicp::max_iterations);
@@ -234,6 +246,8 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   mapper.add("training_scale", &Mapper::training_scale);
   mapper.add("refine_scale", &Mapper::refine_scale);
   mapper.add("insert_stride", &Mapper::insert_stride);
+  mapper.add("insert_from", &Mapper::insert_from, kInsertFrom);
+  mapper.add("source_min_distance", &Mapper::source_min_distance);
   mapper.add("new_alpha", &Mapper::new_alpha);
   mapper.add("new_depth_margin", &Mapper::new_depth_margin);
   mapper.add("new_depth_relative", &Mapper::new_depth_relative);

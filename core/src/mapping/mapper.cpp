@@ -1,8 +1,11 @@
 #include "fslam/core/mapping/mapper.hpp"
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <unordered_set>
 #include <utility>
 
 #include <opencv2/imgproc.hpp>
@@ -140,11 +143,41 @@ bool Mapper::refine_view(const StoredKeyframe& kf, StoredKeyframe* out, std::str
 
 // Gaussians where the map does not explain the keyframe: low rendered opacity, or a rendered
 // surface behind the observed one (something new in front).
-std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf) {
+bool Mapper::covered(const RenderResult& rendered, int u, int v, float z) const {
+  const float alpha = rendered.alpha.at(0, v, u);
+  const float median = rendered.median_depth.at(0, v, u);
+  return alpha >= config_.new_alpha && median > 0.0f &&
+         median - z <= config_.new_depth_margin + config_.new_depth_relative * z;
+}
+
+void Mapper::insert_one(const StoredKeyframe& kf, int u, int v, const Eigen::Vector3f& p_world,
+                        const Eigen::Vector3f& n_world, float sigma_plane, float sigma_normal, float z,
+                        std::vector<float>* sh) {
+  float q[4];
+  rotation_to_normal(n_world, q);  // a disc: the normal's sign does not matter
+  const float log_scale[3] = {std::log(sigma_plane), std::log(sigma_plane), std::log(sigma_normal)};
+  for (int c = 0; c < 3; ++c) (*sh)[c] = rgb_to_sh_dc(kf.colour.at(c, v, u));
+  std::vector<float> f;
+  if (!kf.feature_target.empty()) {
+    f.resize(static_cast<std::size_t>(config_.feature_dim));
+    for (int c = 0; c < config_.feature_dim; ++c) f[c] = kf.feature_target.at(c, v, u);
+  }
+  const float mean[3] = {p_world.x(), p_world.y(), p_world.z()};
+  // Mip-Splatting 3D filter from the sensor's sampling rate at this depth (refined by refine()):
+  // the input image's focal length, not the reduced training one, so that the filter does not
+  // blur renders at the input resolution.
+  const float fx_input = static_cast<float>(kf.view.camera.fx) / static_cast<float>(config_.training_scale);
+  const float filter = config_.filter_3d_factor * (z / fx_input) * (z / fx_input);
+  map_.push_back(mean, q, log_scale, logit(config_.initial_opacity), sh->data(),
+                 f.empty() ? nullptr : f.data(), filter);
+}
+
+std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input) {
   const int W = kf.view.camera.width, H = kf.view.camera.height;
   RenderResult rendered;
   const bool have_map = !map_.empty();
-  if (have_map) {
+  const bool from_source = config_.insert_from == MapperConfig::InsertFrom::source && !input.source_world.empty();
+  if (have_map && !from_source) {
     RenderSettings settings = config_.render;
     settings.features = false;
     std::string why;
@@ -157,48 +190,55 @@ std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf) {
   const float fy = static_cast<float>(kf.view.camera.fy);
   const float cx = static_cast<float>(kf.view.camera.cx);
   const float cy = static_cast<float>(kf.view.camera.cy);
-  const int stride = config_.insert_stride;
   const int K = sh_coefficients(config_.sh_degree);
   std::vector<float> sh(static_cast<std::size_t>(3 * K), 0.0f);
   const std::size_t before = map_.size();
-  for (int v = stride / 2; v < H; v += stride) {
-    for (int u = stride / 2; u < W; u += stride) {
-      const float z = kf.depth.at(0, v, u);
-      if (z <= 0.0f) continue;
-      if (have_map) {
-        const float alpha = rendered.alpha.at(0, v, u);
-        const float median = rendered.median_depth.at(0, v, u);
-        const bool covered = alpha >= config_.new_alpha && median > 0.0f &&
-                             median - z <= config_.new_depth_margin + config_.new_depth_relative * z;
-        if (covered) continue;
+  if (from_source) {
+    // The tracker's source Gaussians where the map does not explain the keyframe yet: mean as
+    // observed, the disc across the covariance's thinnest axis, in-plane sigma from the source
+    // lattice's spacing on the surface.
+    const GaussianPoints& src = input.source_world;
+    const Eigen::Matrix3f Rt = R.transpose();
+    // Cells of source_min_distance that hold a Gaussian mean (new ones included).
+    const float inv_cell = 1.0f / config_.source_min_distance;
+    auto cell_of = [&](const float* p) {
+      const auto c = [&](float x) { return static_cast<std::int64_t>(std::floor(x * inv_cell)) & 0x1FFFFF; };
+      return (c(p[0]) << 42) | (c(p[1]) << 21) | c(p[2]);
+    };
+    std::unordered_set<std::int64_t> occupied;
+    occupied.reserve(map_.size() * 2);
+    for (std::size_t i = 0; i < map_.size(); ++i) occupied.insert(cell_of(&map_.means[3 * i]));
+    const float fx_input = fx / static_cast<float>(config_.training_scale);
+    for (std::size_t i = 0; i < src.size(); ++i) {
+      const Eigen::Vector3f p_cam = Rt * (src.means[i] - t);
+      const float z = p_cam.z();
+      if (!(z >= config_.min_depth && z <= config_.max_depth)) continue;
+      const int u = static_cast<int>(std::lround(fx * p_cam.x() / z + cx));
+      const int v = static_cast<int>(std::lround(fy * p_cam.y() / z + cy));
+      if (u < 0 || v < 0 || u >= W || v >= H) continue;
+      if (!occupied.insert(cell_of(src.means[i].data())).second) continue;
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> eig(src.covariances[i]);
+      const Eigen::Vector3f n = eig.eigenvectors().col(0);  // smallest eigenvalue first
+      const float slant = std::max(0.25f, std::abs((Rt * n).dot(p_cam.normalized())));
+      const float sigma = config_.initial_scale_factor * static_cast<float>(input.source_stride) * z / fx_input;
+      insert_one(kf, u, v, src.means[i], n, sigma / std::sqrt(slant), sigma * config_.initial_thickness, z, &sh);
+    }
+  } else {
+    const int stride = config_.insert_stride;
+    for (int v = stride / 2; v < H; v += stride) {
+      for (int u = stride / 2; u < W; u += stride) {
+        const float z = kf.depth.at(0, v, u);
+        if (z <= 0.0f) continue;
+        if (have_map && covered(rendered, u, v, z)) continue;
+        Eigen::Vector3f n_cam(kf.normals.at(0, v, u), kf.normals.at(1, v, u), kf.normals.at(2, v, u));
+        if (n_cam.squaredNorm() < 0.5f) continue;  // no surface estimate: isolated or edge sample
+        const Eigen::Vector3f p_cam((u - cx) * z / fx, (v - cy) * z / fy, z);
+        // The lattice spacing on the surface: stride pixels at depth z, stretched by the slant.
+        const float slant = std::max(0.25f, std::abs(n_cam.dot(p_cam.normalized())));
+        const float sigma = config_.initial_scale_factor * stride * z / fx;
+        insert_one(kf, u, v, R * p_cam + t, R * n_cam, sigma / std::sqrt(slant),
+                   sigma * config_.initial_thickness, z, &sh);
       }
-      Eigen::Vector3f n_cam(kf.normals.at(0, v, u), kf.normals.at(1, v, u), kf.normals.at(2, v, u));
-      if (n_cam.squaredNorm() < 0.5f) continue;  // no surface estimate: isolated or edge sample
-      const Eigen::Vector3f p_cam((u - cx) * z / fx, (v - cy) * z / fy, z);
-      const Eigen::Vector3f p_world = R * p_cam + t;
-      float q[4];
-      rotation_to_normal(R * n_cam, q);
-      // The lattice spacing on the surface: stride pixels at depth z, stretched by the slant.
-      const float slant = std::max(0.25f, std::abs(n_cam.dot(p_cam.normalized())));
-      const float spacing = stride * z / fx;
-      const float sigma = config_.initial_scale_factor * spacing;
-      const float log_scale[3] = {std::log(sigma / std::sqrt(slant)), std::log(sigma / std::sqrt(slant)),
-                                  std::log(sigma * config_.initial_thickness)};
-      for (int c = 0; c < 3; ++c) sh[c] = rgb_to_sh_dc(kf.colour.at(c, v, u));
-      const float* feature = nullptr;
-      std::vector<float> f;
-      if (!kf.feature_target.empty()) {
-        f.resize(static_cast<std::size_t>(config_.feature_dim));
-        for (int c = 0; c < config_.feature_dim; ++c) f[c] = kf.feature_target.at(c, v, u);
-        feature = f.data();
-      }
-      const float mean[3] = {p_world.x(), p_world.y(), p_world.z()};
-      // Mip-Splatting 3D filter from the sensor's sampling rate at this depth (refined by
-      // refine()): the input image's focal length, not the reduced training one, so that the
-      // filter does not blur renders at the input resolution.
-      const float fx_input = fx / static_cast<float>(config_.training_scale);
-      const float filter = config_.filter_3d_factor * (z / fx_input) * (z / fx_input);
-      map_.push_back(mean, q, log_scale, logit(config_.initial_opacity), sh.data(), feature, filter);
     }
   }
   const std::size_t added = map_.size() - before;
@@ -363,7 +403,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   StoredKeyframe kf;
   if (!store(keyframe, &kf, why)) return false;
   auto t0 = std::chrono::steady_clock::now();
-  s.inserted = insert_gaussians(kf);
+  s.inserted = insert_gaussians(kf, keyframe);
   keyframes_.push_back(std::move(kf));
   s.insert_ms = ms_since(t0);
 

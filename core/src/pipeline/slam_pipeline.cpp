@@ -93,6 +93,20 @@ bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::strin
 bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* result, std::string* why,
                                   const Eigen::Isometry3d* mapping_pose) {
   const RgbdFrame& frame = prepared.frame;
+  if (config_.tracker.target == TrackingTarget::gaussians) {
+    // The newest map target, if the mapper built one since the last frame (never waited for).
+    std::shared_ptr<const LocalMap> target;
+    std::int64_t last_keyframe = -1;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (map_target_serial_ != map_target_taken_) {
+        target = map_target_;
+        last_keyframe = map_target_keyframe_;
+        map_target_taken_ = map_target_serial_;
+      }
+    }
+    if (target) tracker_.set_map_target(*target, last_keyframe);
+  }
   // Register and decide on a keyframe (eq. feat_gicp, keyframe_crit).
   if (!tracker_.track_prepared(frame, prepared.source, result, why,
                                prepared.latent.empty() ? nullptr : &prepared.latent)) {
@@ -108,6 +122,10 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
     kf.camera = frame.camera;
     kf.colour = frame.colour;
     kf.depth = frame.depth;
+    if (config_.mapper.insert_from == MapperConfig::InsertFrom::source) {
+      kf.source_world = transformed(prepared.source.points, kf.T_world_camera);
+      kf.source_stride = config_.tracker.preprocess.stride;
+    }
     {
       std::lock_guard<std::mutex> lock(mutex_);
       // With a keyframe already waiting with its pyramid (mapping behind), this one goes without
@@ -127,6 +145,22 @@ bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
   PreparedFrame prepared;
   return prepare_frame(frame, &prepared, why) &&
          track_prepared(std::move(prepared), result, why, mapping_pose);
+}
+
+void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
+  // Built here, on the mapping thread, so that tracking only copies it.
+  LocalMapConfig config = config_.tracker.local_map;
+  config.fuse = false;  // Gaussians are not observations to average
+  config.min_point_distance = std::min(config_.tracker.map_target.min_point_distance, config.voxel_size);
+  const Eigen::Vector3f centre = kf.T_world_camera.translation().cast<float>();
+  auto target = std::make_shared<LocalMap>(config);
+  target->insert(map_target_points(mapper_.map(), centre, config.radius, config_.tracker.map_target,
+                                   config_.tracker.preprocess),
+                 centre);
+  std::lock_guard<std::mutex> lock(mutex_);
+  map_target_ = std::move(target);
+  map_target_keyframe_ = kf.frame_id;
+  ++map_target_serial_;
 }
 
 void SlamPipeline::finish() {
@@ -196,6 +230,7 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     }
     if (!mapper_.add_keyframe(kf, &report.refinement, why)) return false;
+    if (config_.tracker.target == TrackingTarget::gaussians) publish_map_target(kf);
     report.map_size = mapper_.map().size();
     report.queue_depth = waiting;
     if (on_keyframe) on_keyframe(report);

@@ -20,6 +20,8 @@ double now_ms() {
 constexpr double kDegToRad = M_PI / 180.0;
 // Re-registration after a loss searches wider: the prediction may be off by more than one frame.
 constexpr float kRecoveryDistanceFactor = 2.0f;
+// target = gaussians: keyframes kept for the bridge while the mapper has not mapped them.
+constexpr std::size_t kMaxUnmappedKeyframes = 32;
 
 }  // namespace
 
@@ -45,10 +47,23 @@ bool TrackerConfig::is_valid(std::string* why) const {
   if (!gicp.is_valid(&reason)) return fail(why, "gicp: " + reason);
   if (!keyframe.is_valid(&reason)) return fail(why, reason);
   if (!loss.is_valid(&reason)) return fail(why, reason);
+  if (!map_target.is_valid(&reason)) return fail(why, reason);
   if (local_map.voxel_size < gicp.max_correspondence_distance)
     return fail(why, "local_map.voxel_size must be >= gicp.max_correspondence_distance "
                      "(the neighbour search covers one voxel around the query)");
   return true;
+}
+
+const char* to_string(TrackingTarget target) {
+  return target == TrackingTarget::gaussians ? "gaussians" : "points";
+}
+
+void Tracker::set_map_target(const LocalMap& target, std::int64_t last_keyframe_id) {
+  while (!unmapped_.empty() && unmapped_.front().frame_id <= last_keyframe_id) unmapped_.pop_front();
+  map_ = target;
+  for (const Keyframe& kf : unmapped_) {
+    map_.insert(transformed(kf.points_camera, kf.T_world_camera), kf.T_world_camera.translation().cast<float>());
+  }
 }
 
 const char* to_string(TrackingState state) {
@@ -65,6 +80,7 @@ Tracker::Tracker(const TrackerConfig& config) : config_(config), map_(config.loc
 
 void Tracker::reset() {
   map_.clear();
+  unmapped_.clear();
   T_last_.reset();
   T_velocity_.reset();
   keyframes_.clear();
@@ -124,10 +140,19 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     // the keyframe re-observes the map's features; a stored point within the correspondence
     // gate of the keyframe's depth is the surface the keyframe sees.
     map_.insert(transformed(source, T_world_camera), T_world_camera.translation().cast<float>());
-    if (config_.refresh_features && latent != nullptr && !latent->empty())
+    // On the map's Gaussians the target features are the distilled ones (eq. feat_dist's f_t):
+    // keyframes refresh only their own points' features.
+    if (config_.target == TrackingTarget::points && config_.refresh_features && latent != nullptr &&
+        !latent->empty())
       refresh_map_features(*latent, frame.camera, frame.depth, T_world_camera,
                            config_.gicp.max_correspondence_distance, &map_);
     keyframes_.push_back({frame.id, T_world_camera, source});
+    if (config_.target == TrackingTarget::gaussians) {
+      unmapped_.push_back(keyframes_.back());
+      // A mapper this far behind is not waited for: the oldest unmapped keyframes leave the
+      // bridge (they are still in the current target copy until the next one replaces it).
+      while (unmapped_.size() > kMaxUnmappedKeyframes) unmapped_.pop_front();
+    }
     while (keyframes_.size() > static_cast<std::size_t>(config_.loss.recovery_keyframes) + 1)
       keyframes_.pop_front();
   };

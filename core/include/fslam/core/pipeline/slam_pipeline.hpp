@@ -115,11 +115,18 @@ class SlamPipeline {
     std::shared_ptr<FeaturePyramid> pyramid;
   };
   class PyramidPool;
+  void publish_map_target(const MapperKeyframe& kf);
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
   // The preparing thread's own encoder (LatentFeatures is not thread-safe), made at the first
   // frame when features_ is set and track_with_features is on.
   std::unique_ptr<LatentFeatures> tracking_features_;
   std::shared_ptr<PyramidPool> pyramids_;
+  // tracker.target = gaussians: the newest target built from the map on the mapping thread, the
+  // last keyframe it contains, and a serial the tracking side compares with the one it took.
+  std::shared_ptr<const LocalMap> map_target_;          // guarded by mutex_
+  std::int64_t map_target_keyframe_ = -1;               // guarded by mutex_
+  std::uint64_t map_target_serial_ = 0;                 // guarded by mutex_
+  std::uint64_t map_target_taken_ = 0;                  // tracking side only
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<QueuedKeyframe> queue_;

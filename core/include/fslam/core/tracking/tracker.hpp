@@ -12,6 +12,7 @@
 #include "fslam/core/render/planar_image.hpp"
 #include "fslam/core/tracking/gicp.hpp"
 #include "fslam/core/tracking/local_map.hpp"
+#include "fslam/core/tracking/map_target.hpp"
 #include "fslam/core/tracking/preprocess.hpp"
 
 namespace fslam::core {
@@ -34,9 +35,18 @@ struct TrackingLossConfig {
   bool is_valid(std::string* why = nullptr) const;
 };
 
+// What a frame registers against (eq. gicp_sets' target G^t).
+enum class TrackingTarget : std::uint8_t {
+  points,     // the tracker's own local map of fused keyframe depth points
+  gaussians,  // the mapper's Gaussians (map_target.hpp), plus the keyframes it has not mapped yet
+};
+const char* to_string(TrackingTarget target);
+
 struct TrackerConfig {
   PreprocessConfig preprocess;
   LocalMapConfig local_map;
+  TrackingTarget target = TrackingTarget::points;
+  MapTargetConfig map_target;   // with target = gaussians
   GicpConfig gicp;
   KeyframeConfig keyframe;
   TrackingLossConfig loss;
@@ -107,6 +117,11 @@ class Tracker {
              const PlanarImage* latent = nullptr);
 
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera) { T_initial_ = T_world_camera; }
+  // With target = gaussians: the target built from a map version that contains every keyframe
+  // up to `last_keyframe_id` (SlamPipeline builds it on the mapping thread). The tracker then
+  // registers against a copy of it plus the keyframes it made since, which no version holds
+  // yet (the bridge between a keyframe and the map version that contains it).
+  void set_map_target(const LocalMap& target, std::int64_t last_keyframe_id);
   const LocalMap& local_map() const { return map_; }
   std::size_t keyframe_count() const { return keyframes_.size(); }
   void reset();
@@ -127,6 +142,9 @@ class Tracker {
   std::optional<Eigen::Isometry3d> T_last_;       // last tracked pose (world <- camera)
   std::optional<Eigen::Isometry3d> T_velocity_;   // T_{k-2}^-1 T_{k-1}
   std::deque<Keyframe> keyframes_;                // most recent last, bounded
+  // target = gaussians: keyframes no map target contains yet, oldest first (their points are
+  // added to each new target copy).
+  std::deque<Keyframe> unmapped_;
 };
 
 }  // namespace fslam::core

@@ -1,0 +1,32 @@
+// The GICP target made from the Gaussian map itself (paper eq. gicp_sets: G^t is the global
+// map; eq. feat_gicp weights each correspondence by the target's opacity alpha and compares the
+// frame's features with the Gaussians' distilled ones). The mapper's optimisation therefore
+// moves what the tracker registers against.
+#pragma once
+
+#include <Eigen/Core>
+
+#include "fslam/core/map/gaussian_map.hpp"
+#include "fslam/core/tracking/gaussian_points.hpp"
+#include "fslam/core/tracking/preprocess.hpp"
+
+namespace fslam::core {
+
+struct MapTargetConfig {
+  float min_opacity = 0.1f;          // effective opacity below which a Gaussian is no target
+  float min_point_distance = 0.015f; // metres; thinning of the target (LocalMap), densest first
+  bool unit_discs = true;            // covariance: unit disc across the thinnest axis; false:
+                                     // the Gaussian's normalised shape (in-plane elongation kept)
+  bool is_valid(std::string* why = nullptr) const;
+};
+
+// The Gaussians of `map` within `radius` of `centre_world` as GICP target points, most opaque
+// first: mean; covariance R diag(s^2 + filter) R^T of scale and rotation, normalised as the
+// frame's source covariances are (largest axis 1, thinnest floored at plane_epsilon, times the
+// sensor's depth noise at its distance from `centre_world`); opacity sigmoid(logit) with the 3D
+// filter's compensation; the distilled latent as its features (when the map has them).
+GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& centre_world,
+                                 float radius, const MapTargetConfig& config,
+                                 const PreprocessConfig& preprocess);
+
+}  // namespace fslam::core

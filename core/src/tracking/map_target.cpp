@@ -1,0 +1,92 @@
+#include "fslam/core/tracking/map_target.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+
+#include "fslam/core/error.hpp"
+#include "fslam/core/math/splat_math.hpp"
+
+namespace fslam::core {
+
+bool MapTargetConfig::is_valid(std::string* why) const {
+  if (!(min_opacity >= 0.0f && min_opacity < 1.0f)) return fail(why, "map_target.min_opacity must be in [0, 1)");
+  if (!(min_point_distance >= 0.0f)) return fail(why, "map_target.min_point_distance must be >= 0 m");
+  return true;
+}
+
+GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& centre_world,
+                                 float radius, const MapTargetConfig& config,
+                                 const PreprocessConfig& preprocess) {
+  GaussianPoints out;
+  const std::size_t n = map.size();
+  const float epsilon = preprocess.covariance.plane_epsilon;
+  const int D = map.features.empty() ? 0 : map.feature_dim;
+  // Candidates and their opacity, then most opaque first: the LocalMap's thinning keeps the
+  // first of two Gaussians closer than min_point_distance.
+  std::vector<std::pair<float, std::size_t>> order;
+  order.reserve(n);
+  const float radius2 = radius * radius;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f mean(map.means[3 * i], map.means[3 * i + 1], map.means[3 * i + 2]);
+    if ((mean - centre_world).squaredNorm() > radius2) continue;
+    // Effective opacity as the renderer composites it (3D filter compensation).
+    const float filter = map.filter_3d.empty() ? 0.0f : map.filter_3d[i];
+    float coef = 1.0f;
+    for (int k = 0; k < 3; ++k) {
+      const float s = std::exp(map.log_scales[3 * i + k]);
+      coef *= s / std::sqrt(s * s + filter);
+    }
+    const float opacity = math::sigmoid(map.opacity_logits[i]) * coef;
+    if (opacity < config.min_opacity) continue;
+    order.push_back({opacity, i});
+  }
+  std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) {
+    return a.first > b.first || (a.first == b.first && a.second < b.second);
+  });
+  out.reserve(order.size());
+  out.opacities.reserve(order.size());
+  out.feature_dim = D;
+  if (D > 0) out.features.reserve(order.size() * static_cast<std::size_t>(D));
+  for (const auto& [opacity, i] : order) {
+    const Eigen::Vector3f mean(map.means[3 * i], map.means[3 * i + 1], map.means[3 * i + 2]);
+    float q[4] = {map.rotations[4 * i], map.rotations[4 * i + 1], map.rotations[4 * i + 2],
+                  map.rotations[4 * i + 3]};
+    float R[9];
+    math::quat_to_rotmat(q, R);
+    const float filter = map.filter_3d.empty() ? 0.0f : map.filter_3d[i];
+    Eigen::Vector3f variance;
+    for (int k = 0; k < 3; ++k) {
+      const float s = std::exp(map.log_scales[3 * i + k]);
+      variance[k] = s * s + filter;
+    }
+    const Eigen::Map<const Eigen::Matrix<float, 3, 3, Eigen::RowMajor>> Rg(R);
+    if (config.unit_discs) {
+      // The surface the Gaussian stands for, as the source's: a unit disc across its thinnest
+      // axis (eigenvalues epsilon, 1, 1), in-plane elongation dropped.
+      int thinnest = 0;
+      for (int k = 1; k < 3; ++k)
+        if (variance[k] < variance[thinnest]) thinnest = k;
+      for (int k = 0; k < 3; ++k) variance[k] = k == thinnest ? epsilon : 1.0f;
+    } else {
+      // The Gaussian's shape, scale-free like the source's unit discs: largest axis 1, the
+      // thinnest no thinner than plane_epsilon.
+      const float largest = std::max(variance.maxCoeff(), 1e-12f);
+      for (int k = 0; k < 3; ++k) variance[k] = std::max(variance[k] / largest, epsilon);
+    }
+    const float noise = preprocess.depth_noise.covariance_scale((mean - centre_world).norm());
+    out.means.push_back(mean);
+    out.covariances.push_back(noise * (Rg * variance.asDiagonal() * Rg.transpose()));
+    out.opacities.push_back(opacity);
+    if (D > 0) {
+      const float* f = map.features.data() + i * static_cast<std::size_t>(D);
+      out.features.insert(out.features.end(), f, f + D);
+    }
+  }
+  return out;
+}
+
+}  // namespace fslam::core
