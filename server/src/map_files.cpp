@@ -1,9 +1,12 @@
 #include "fslam/server/map_files.hpp"
 
+#include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <system_error>
+#include <thread>
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
@@ -44,10 +47,78 @@ bool is_map_folder(const std::string& dir) {
   return fs::is_regular_file(fs::path(dir) / "map.ply", ec);
 }
 
+namespace {
+
+// The save's staging and previous-version folders beside `dir`: hidden names, which no map name
+// can take (valid_map_name), so that saving map X never touches a map or folder of the user's.
+fs::path staging_of(const fs::path& dir) { return dir.parent_path() / ("." + dir.filename().string() + ".saving"); }
+fs::path previous_of(const fs::path& dir) { return dir.parent_path() / ("." + dir.filename().string() + ".old"); }
+// Written last into the staging folder: a staging folder without it is half a save.
+constexpr const char* kCompleteMarker = ".complete";
+
+// Fault tests only (tests/integration/save_kill_test.sh): FSLAM_FAULT_SAVE_PAUSE_MS widens the
+// steps of the swap so that a kill lands inside them; unset (always, in use) it costs nothing.
+void fault_pause() {
+  static const int ms = [] {
+    const char* v = std::getenv("FSLAM_FAULT_SAVE_PAUSE_MS");
+    return v != nullptr ? std::atoi(v) : 0;
+  }();
+  if (ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+}
+
+}  // namespace
+
+bool valid_map_name(const std::string& name, std::string* why) {
+  if (name.empty() || name.size() > 128) return core::fail(why, "map name must be 1-128 characters");
+  if (name[0] == '.') return core::fail(why, "map name '" + name + "' may not start with '.'");
+  for (const char c : name) {
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                    c == '-' || c == '_' || c == '.';
+    if (!ok) {
+      return core::fail(why, "map name '" + name + "' may hold only letters, digits, '-', '_' and '.' "
+                             "(it names the map's folder on disk)");
+    }
+  }
+  return true;
+}
+
+bool recover_map_folder(const std::string& dir, std::string* note) {
+  const fs::path target(dir), staging = staging_of(target), old = previous_of(target);
+  std::error_code ec;
+  note->clear();
+  if (is_map_folder(dir)) {
+    // A save that was killed before the swap, or after it but before the old version was removed.
+    if (fs::exists(staging, ec) || fs::exists(old, ec)) *note = "removed an interrupted save's leftovers beside " + dir;
+    fs::remove_all(staging, ec);
+    fs::remove_all(old, ec);
+    return true;
+  }
+  if (fs::exists(staging / kCompleteMarker, ec) && !fs::exists(target, ec)) {
+    // Killed between moving the old version aside and moving the new one in: the new is whole.
+    fs::rename(staging, target, ec);
+    if (!ec) {
+      fs::remove_all(old, ec);
+      *note = "finished an interrupted save of " + dir;
+      return true;
+    }
+  }
+  if (fs::exists(old / "map.ply", ec) && !fs::exists(target, ec)) {
+    fs::rename(old, target, ec);
+    if (!ec) {
+      fs::remove_all(staging, ec);
+      *note = "restored the previous version of " + dir + " (an interrupted save had not finished writing)";
+      return true;
+    }
+  }
+  return is_map_folder(dir);
+}
+
 bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* why) {
   if (!map.gaussians) return core::fail(why, "save map: no map");
-  const fs::path target(dir), staging(dir + ".saving"), old(dir + ".old");
+  const fs::path target(dir), staging = staging_of(target), old = previous_of(target);
   std::error_code ec;
+  std::string note;
+  recover_map_folder(dir, &note);  // a crash of an earlier save: whole versions only
   fs::remove_all(staging, ec);
   if (!fs::create_directories(staging, ec) && ec) {
     return core::fail(why, "save map: cannot create " + staging.string() + ": " + ec.message());
@@ -61,14 +132,18 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
   if (!core::write_gaussian_ply((staging / "map.ply").string(), *map.gaussians, why) ||
       !write_text(staging / "poses.txt", format_poses(map.poses), why) ||
       !core::write_tum_trajectory((staging / "trajectory.txt").string(), trajectory, why) ||
-      !write_text(staging / "camera.txt", camera, why)) {
+      !write_text(staging / "camera.txt", camera, why) ||
+      !write_text(staging / kCompleteMarker, "", why)) {
     fs::remove_all(staging, ec);
     return false;
   }
-  // Swap in: the old folder survives until the new one is in place.
+  // Swap in. At every point a kill leaves a whole version that recover_map_folder finds: the
+  // target (old or new), else the complete staging folder, else the old one moved aside.
   fs::remove_all(old, ec);
+  fault_pause();
   if (fs::exists(target)) fs::rename(target, old, ec);
   if (ec) return core::fail(why, "save map: cannot move the previous " + dir + " aside: " + ec.message());
+  fault_pause();
   fs::rename(staging, target, ec);
   if (ec) return core::fail(why, "save map: cannot rename into " + dir + ": " + ec.message());
   fs::remove_all(old, ec);

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <set>
+#include <string>
 #include <unordered_map>
 #include <utility>
 #include <vector>
@@ -258,10 +260,33 @@ bool Server::activate(std::string* why) {
     std::filesystem::create_directories(config_.map_dir, ec);
     if (ec) return core::fail(why, "map_dir " + config_.map_dir + ": " + ec.message());
     if (config_.load_maps_at_start) {
-      // One bad folder is reported and skipped: the other maps are still served.
+      // A save killed half-way left `.NAME.saving` / `.NAME.old` beside NAME: whole versions
+      // first (map_files.hpp), then every map folder. One bad folder is reported and skipped:
+      // the other maps are still served.
+      std::set<std::string> interrupted;
+      for (const auto& entry : std::filesystem::directory_iterator(config_.map_dir, ec)) {
+        const std::string hidden = entry.path().filename().string();
+        for (const std::string suffix : {".saving", ".old"}) {
+          if (hidden.size() > suffix.size() + 1 && hidden[0] == '.' &&
+              hidden.compare(hidden.size() - suffix.size(), suffix.size(), suffix) == 0) {
+            interrupted.insert(hidden.substr(1, hidden.size() - suffix.size() - 1));
+          }
+        }
+      }
+      for (const std::string& name : interrupted) {
+        std::string note;
+        recover_map_folder((std::filesystem::path(config_.map_dir) / name).string(), &note);
+        if (!note.empty()) log(note);
+      }
       for (const auto& entry : std::filesystem::directory_iterator(config_.map_dir, ec)) {
         const std::string name = entry.path().filename().string();
+        if (name.empty() || name[0] == '.') continue;  // a save's staging, or not ours
         if (!entry.is_directory() || !is_map_folder(entry.path().string())) continue;
+        std::string invalid;
+        if (!valid_map_name(name, &invalid)) {
+          log("skipped map folder " + entry.path().string() + ": " + invalid);
+          continue;
+        }
         std::string load_why;
         if (load(name, entry.path().string(), &load_why)) {
           log("loaded map '" + name + "' from " + entry.path().string() + " (" +
@@ -516,6 +541,8 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
                               "session '" + name + "' already streams into map '" +
                                   it->second->map->name + "'");
       }
+      std::string invalid;
+      if (!valid_map_name(map_name, &invalid)) return publish_result(msg.session, msg.request_id, map_name, invalid);
       if (maps_.count(map_name) != 0) {
         // Growing a finished or loaded map would need relocalising in it first: not supported.
         return publish_result(msg.session, msg.request_id, map_name,
@@ -1161,7 +1188,7 @@ bool Server::save(MapEntry& map, const std::string& folder, std::string* why) {
 }
 
 bool Server::load(const std::string& name, const std::string& folder, std::string* why) {
-  if (name.empty()) return core::fail(why, "load map: no map name");
+  if (!valid_map_name(name, why)) return false;
   StoredMap stored;
   if (!load_map_folder(folder, &stored, why)) return false;
   auto map = std::make_shared<MapEntry>();

@@ -3,6 +3,8 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -47,7 +49,7 @@ TEST(MapFiles, SaveThenLoadGivesTheSameMapPosesAndCamera) {
   std::string why;
   ASSERT_TRUE(save_map_folder(dir.string(), saved, &why)) << why;
   EXPECT_TRUE(is_map_folder(dir.string()));
-  EXPECT_FALSE(std::filesystem::exists(dir.string() + ".saving"));
+  EXPECT_FALSE(std::filesystem::exists(dir.parent_path() / ".room.saving"));
   StoredMap loaded;
   ASSERT_TRUE(load_map_folder(dir.string(), &loaded, &why)) << why;
   const core::GaussianMap &a = *saved.gaussians, &b = *loaded.gaussians;
@@ -72,7 +74,74 @@ TEST(MapFiles, SaveThenLoadGivesTheSameMapPosesAndCamera) {
   ASSERT_TRUE(save_map_folder(dir.string(), smaller, &why)) << why;
   ASSERT_TRUE(load_map_folder(dir.string(), &loaded, &why)) << why;
   EXPECT_EQ(loaded.poses.size(), 1u);
-  EXPECT_FALSE(std::filesystem::exists(dir.string() + ".old"));
+  EXPECT_FALSE(std::filesystem::exists(dir.parent_path() / ".room.old"));
+}
+
+// A save killed at any point leaves a whole version that recover_map_folder (run by the server
+// at start and before each save) puts back in place: the states each step of the swap leaves.
+TEST(MapFiles, AnInterruptedSaveRecoversAWholeVersion) {
+  namespace fs = std::filesystem;
+  const auto root = test::fresh_temp_dir("interrupted");
+  const fs::path dir = root / "m", staging = root / ".m.saving", old = root / ".m.old";
+  StoredMap v1 = small_map(), v2 = small_map();
+  v2.poses.resize(1);
+  std::string why, note;
+  auto poses_in = [&](const fs::path& d) {
+    StoredMap loaded;
+    return load_map_folder(d.string(), &loaded, &why) ? loaded.poses.size() : std::size_t{0};
+  };
+  // Killed after the old version moved aside, before the new one moved in: the new one wins.
+  ASSERT_TRUE(save_map_folder(staging.string(), v2, &why)) << why;  // a complete staging folder
+  std::ofstream(staging / ".complete").close();
+  ASSERT_TRUE(save_map_folder(old.string(), v1, &why)) << why;
+  ASSERT_TRUE(recover_map_folder(dir.string(), &note));
+  EXPECT_NE(note.find("interrupted save"), std::string::npos) << note;
+  EXPECT_EQ(poses_in(dir), 1u);
+  EXPECT_FALSE(fs::exists(staging));
+  EXPECT_FALSE(fs::exists(old));
+  // Killed while writing the new version, with the old one aside: the old one comes back.
+  fs::remove_all(dir);
+  ASSERT_TRUE(save_map_folder(old.string(), v1, &why)) << why;
+  fs::create_directories(staging);
+  std::ofstream(staging / "map.ply") << "ply\nformat ascii 1.0\n";  // half written, no marker
+  ASSERT_TRUE(recover_map_folder(dir.string(), &note));
+  EXPECT_NE(note.find("previous version"), std::string::npos) << note;
+  EXPECT_EQ(poses_in(dir), 3u);
+  EXPECT_FALSE(fs::exists(staging));
+  // Killed before the swap, or after it: the map in place stays, the leftovers go.
+  fs::create_directories(staging);
+  ASSERT_TRUE(save_map_folder(old.string(), v2, &why)) << why;
+  ASSERT_TRUE(recover_map_folder(dir.string(), &note));
+  EXPECT_NE(note.find("leftovers"), std::string::npos) << note;
+  EXPECT_EQ(poses_in(dir), 3u);
+  EXPECT_FALSE(fs::exists(staging));
+  EXPECT_FALSE(fs::exists(old));
+  // Nothing to recover from: no map, and a clear false.
+  EXPECT_FALSE(recover_map_folder((root / "never").string(), &note));
+}
+
+TEST(MapFiles, SavingAMapLeavesTheUsersOtherFoldersAlone) {
+  namespace fs = std::filesystem;
+  const auto root = test::fresh_temp_dir("neighbours");
+  std::string why;
+  // Folders (even maps) named like the old staging names belong to someone else.
+  ASSERT_TRUE(save_map_folder((root / "m.old").string(), small_map(), &why)) << why;
+  ASSERT_TRUE(save_map_folder((root / "m.saving").string(), small_map(), &why)) << why;
+  ASSERT_TRUE(save_map_folder((root / "m").string(), small_map(), &why)) << why;
+  ASSERT_TRUE(save_map_folder((root / "m").string(), small_map(), &why)) << why;
+  EXPECT_TRUE(is_map_folder((root / "m.old").string()));
+  EXPECT_TRUE(is_map_folder((root / "m.saving").string()));
+}
+
+TEST(MapFiles, MapNamesAreFolderNames) {
+  std::string why;
+  EXPECT_TRUE(valid_map_name("kitchen-2_v1.0", &why)) << why;
+  const std::vector<std::string> bad_names = {"", "../x", "a/b", ".hidden", "sp ace", std::string(129, 'a'),
+                                              std::string("nul\0", 4)};
+  for (const std::string& bad : bad_names) {
+    EXPECT_FALSE(valid_map_name(bad, &why)) << "'" << bad << "'";
+    EXPECT_FALSE(why.empty());
+  }
 }
 
 TEST(MapFiles, BadFoldersAreClearErrors) {

@@ -29,10 +29,17 @@ struct StoredMap {
   std::vector<FramePose> poses;   // in processing order
 };
 
-// Writes the folder next to `dir` first and renames it into place, so that a crash or a full
-// disk never leaves half a map where a whole one was.
+// Writes the folder next to `dir` first (hidden: `.NAME.saving`) and renames it into place
+// (the previous version moved aside to `.NAME.old` meanwhile), so that a crash or a full disk
+// never leaves half a map where a whole one was.
 bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* why);
 bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why);
+// After a crash: makes `dir` hold a whole version again if a save was interrupted (the new one
+// when it was complete, else the previous one) and removes a save's leftovers. True when `dir`
+// then holds a map; `note` says what was done (empty: nothing).
+bool recover_map_folder(const std::string& dir, std::string* note);
+// A map's name names its folder: 1-128 letters, digits, '-', '_', '.', not starting with '.'.
+bool valid_map_name(const std::string& name, std::string* why);
 // True when `dir` holds a saved map (its map.ply).
 bool is_map_folder(const std::string& dir);
 
