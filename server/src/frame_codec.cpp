@@ -41,6 +41,18 @@ bool accept_image(const fslam_proto_Image& image, int channels, int bytes_per_ch
       return core::fail(why, name + ": raw payload of " + std::to_string(n) + " bytes, expected " +
                                  std::to_string(expected));
     }
+  } else {
+    // What the decoder would allocate, from the header, before it runs.
+    std::uint32_t w = 0, h = 0;
+    if (!encoded_image_size(image.data._buffer, n, image.encoding, &w, &h)) {
+      return core::fail(why, name + ": the " + (image.encoding == fslam_proto_ENCODING_PNG ? "PNG" : "JPEG") +
+                                 " header cannot be read");
+    }
+    if (w != image.width || h != image.height) {
+      return core::fail(why, name + ": the payload's header says " + std::to_string(w) + "x" +
+                                 std::to_string(h) + ", the frame " + std::to_string(image.width) + "x" +
+                                 std::to_string(image.height));
+    }
   }
   out->encoding = image.encoding;
   out->width = image.width;
@@ -74,12 +86,53 @@ bool decode_image(const EncodedImage& image, int cv_type, const char* what, cv::
 
 }  // namespace
 
+bool encoded_image_size(const std::uint8_t* d, std::size_t n, fslam_proto_ImageEncoding encoding,
+                        std::uint32_t* width, std::uint32_t* height) {
+  auto be16 = [&](std::size_t i) { return static_cast<std::uint32_t>(d[i]) << 8 | d[i + 1]; };
+  auto be32 = [&](std::size_t i) { return be16(i) << 16 | be16(i + 2); };
+  if (encoding == fslam_proto_ENCODING_PNG) {
+    // Signature (8 bytes), then the IHDR chunk: length, "IHDR", width, height.
+    static const std::uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+    if (n < 24 || std::memcmp(d, kSignature, 8) != 0 || std::memcmp(d + 12, "IHDR", 4) != 0) return false;
+    *width = be32(16);
+    *height = be32(20);
+    return true;
+  }
+  if (encoding == fslam_proto_ENCODING_JPEG) {
+    // Markers from SOI on, each with a 16-bit length, up to the first start-of-frame.
+    if (n < 4 || d[0] != 0xFF || d[1] != 0xD8) return false;
+    std::size_t i = 2;
+    while (i + 4 <= n) {
+      if (d[i] != 0xFF) return false;
+      const std::uint8_t marker = d[i + 1];
+      if (marker == 0xFF) { ++i; continue; }  // fill byte
+      if (marker == 0xD8 || (marker >= 0xD0 && marker <= 0xD7) || marker == 0x01) { i += 2; continue; }
+      const std::size_t length = be16(i + 2);
+      if (length < 2) return false;
+      const bool sof = marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 && marker != 0xC8 && marker != 0xCC;
+      if (sof) {
+        if (i + 9 > n) return false;
+        *height = be16(i + 5);
+        *width = be16(i + 7);
+        return true;
+      }
+      i += 2 + length;
+    }
+    return false;
+  }
+  return false;
+}
+
 bool accept_frame(const fslam_proto_Frame& msg, EncodedFrame* out, std::string* why) {
   const fslam_proto_Intrinsics& k = msg.intrinsics;
   core::PinholeCamera camera{k.fx, k.fy, k.cx, k.cy, static_cast<int>(k.width),
                              static_cast<int>(k.height)};
   std::string reason;
   if (!camera.is_valid(&reason)) return core::fail(why, "intrinsics: " + reason);
+  if (static_cast<std::size_t>(k.width) * k.height > kMaxFramePixels) {
+    return core::fail(why, "frame of " + std::to_string(k.width) + "x" + std::to_string(k.height) +
+                               " pixels is over the limit of " + std::to_string(kMaxFramePixels) + " (4K)");
+  }
   if (!plausible_focal(camera.fx, camera.width) || !plausible_focal(camera.fy, camera.height)) {
     return core::fail(why, "intrinsics: focal lengths fx=" + std::to_string(camera.fx) + ", fy=" +
                                std::to_string(camera.fy) + " are implausible for a " +

@@ -18,6 +18,14 @@ namespace fslam::server {
 
 // Largest payload accepted per image: a 4K RGB frame, raw.
 constexpr std::size_t kMaxImageBytes = 3840u * 2160u * 3u;
+// Largest frame accepted, in pixels (4K): checked on the declared size and on the PNG or JPEG
+// header before anything is decoded, so that a small payload cannot decode to gigabytes.
+constexpr std::size_t kMaxFramePixels = 3840u * 2160u;
+
+// The image size a PNG (IHDR) or JPEG (first SOF marker) payload declares in its header; false
+// when the header cannot be read.
+bool encoded_image_size(const std::uint8_t* data, std::size_t n, fslam_proto_ImageEncoding encoding,
+                        std::uint32_t* width, std::uint32_t* height);
 
 // One image payload as it came (RAW rows, PNG or JPEG), owned.
 struct EncodedImage {
