@@ -39,6 +39,7 @@ struct StreamArgs {
   std::string policy = "server";  // live, queue, or the server's default
   DiscoveryArgs discovery;
   int timeout_s = 60;        // for the last poses after the last frame
+  int window = 32;           // queue policy: frames sent and not answered yet, at most
 };
 
 // Frame-to-pose latency as the client sees it (push_frame called -> pose received, one clock)
@@ -155,7 +156,25 @@ int run_stream(const StreamArgs& args) {
   Progress progress("stream", n);
   const auto start = std::chrono::steady_clock::now();
   std::vector<double> timestamps(n);
+  // Queue sessions hold a bounded number of frames (server.queue_capacity, 64 by default): a
+  // client faster than tracking waits for answers rather than overrunning it (frames the
+  // server drops are errors). Live sessions skip instead, so they need no window.
+  const bool windowed = args.policy == "queue" && args.window > 0;
+  auto answered = [&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return poses.size() + skipped.size() + errors.load();
+  };
   for (std::size_t i = 0; i < n; ++i) {
+    if (windowed) {
+      const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(args.timeout_s);
+      while (i >= answered() + static_cast<std::size_t>(args.window)) {
+        if (std::chrono::steady_clock::now() > give_up) {
+          return fail("no answer for " + std::to_string(i - answered()) + " frames within " +
+                      std::to_string(args.timeout_s) + " s");
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      }
+    }
     if (rate > 0) {
       std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                                 std::chrono::duration<double>(static_cast<double>(i) / rate)));
@@ -297,6 +316,11 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
                   "waiting), queue (track every frame), or the server's default")
       ->capture_default_str();
   app->add_option("--timeout", args->timeout_s, "Seconds to wait for the last poses")
+      ->capture_default_str();
+  app->add_option("--window", args->window,
+                  "With --policy queue: at most this many frames sent and not answered yet (the "
+                  "client waits; keep it under the server's queue_capacity); 0: no limit")
+      ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   commands->push_back({app, [args] { return run_stream(*args); }});
 }
