@@ -255,10 +255,11 @@ int run_stream(const StreamArgs& args) {
     skip_count = skipped.size();
   }
   const std::size_t missing = n - std::min(n, trajectory.size() + skip_count + errors.load());
-  std::printf("frames sent %zu: tracked %zu, skipped %zu (live policy: a newer frame came while "
-              "the tracker was busy), errors %zu, no answer %zu; %.1f s to the last pose "
-              "(%.1f tracked frames/s)\n",
-              n, trajectory.size(), skip_count, errors.load(), missing, elapsed,
+  std::printf("frames sent %zu: tracked %zu, skipped %zu%s, errors %zu, no answer %zu; %.1f s to "
+              "the last pose (%.1f tracked frames/s)\n",
+              n, trajectory.size(), skip_count,
+              skip_count > 0 ? " (live policy: a newer frame came while the tracker was busy)" : "",
+              errors.load(), missing, elapsed,
               static_cast<double>(trajectory.size()) / std::max(elapsed, 1e-9));
   const Latency latency = latency_of(sent, arrived, poses);
   print_latency(latency);
