@@ -346,6 +346,9 @@ void add_server_fields(std::vector<ConfigField>* f) {
   server.add("query_threads", &ServerConfig::query_threads);
   server.add("query_queue_capacity", &ServerConfig::query_queue_capacity);
   server.add("max_render_pixels", &ServerConfig::max_render_pixels);
+  server.add("max_sessions", &ServerConfig::max_sessions);
+  server.add("max_maps", &ServerConfig::max_maps);
+  server.add("max_prompts", &ServerConfig::max_prompts);
   server.add("grounding_model", &ServerConfig::grounding_model);
   server.add("grounding_input_size", &ServerConfig::grounding_input_size);
   server.add("grounding_box_threshold", &ServerConfig::grounding_box_threshold);

@@ -215,6 +215,9 @@ bool ServerConfig::is_valid(std::string* why) const {
   if (query_queue_capacity == 0) return core::fail(why, "server: query_queue_capacity must be > 0");
   if (mapping_threads < 0) return core::fail(why, "server: mapping_threads must be >= 0");
   if (max_render_pixels == 0) return core::fail(why, "server: max_render_pixels must be > 0");
+  if (max_sessions == 0 || max_maps == 0 || max_prompts == 0) {
+    return core::fail(why, "server: max_sessions, max_maps and max_prompts must be > 0");
+  }
   if (instance.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-") !=
       std::string::npos) {
     return core::fail(why, "server: instance '" + instance + "' may hold only letters, digits, '-' and '_'");
@@ -543,6 +546,16 @@ void Server::handle_control(const fslam_proto_SessionControl& msg) {
       }
       std::string invalid;
       if (!valid_map_name(map_name, &invalid)) return publish_result(msg.session, msg.request_id, map_name, invalid);
+      if (sessions_.size() >= config_.max_sessions) {
+        return publish_result(msg.session, msg.request_id, map_name,
+                              "the server streams its limit of " + std::to_string(config_.max_sessions) +
+                                  " sessions (server.max_sessions); close one first");
+      }
+      if (maps_.size() >= config_.max_maps) {
+        return publish_result(msg.session, msg.request_id, map_name,
+                              "the server holds its limit of " + std::to_string(config_.max_maps) +
+                                  " maps (server.max_maps)");
+      }
       if (maps_.count(map_name) != 0) {
         // Growing a finished or loaded map would need relocalising in it first: not supported.
         return publish_result(msg.session, msg.request_id, map_name,
@@ -1004,9 +1017,13 @@ std::string number(double x) {
 // the box prompts. Cheap checks only: nothing is rendered.
 bool check_prompts(const fslam_proto_SegmentMode mode, const std::vector<float>& points,
                    const std::vector<float>& box_values, const core::PinholeCamera& camera,
-                   std::vector<Eigen::Vector2d>* uv, std::vector<core::BoxPrompt>* boxes,
-                   std::string* why) {
+                   std::size_t max_prompts, std::vector<Eigen::Vector2d>* uv,
+                   std::vector<core::BoxPrompt>* boxes, std::string* why) {
   const double w = camera.width, h = camera.height;
+  if (points.size() / 2 > max_prompts || box_values.size() / 4 > max_prompts) {
+    return core::fail(why, "segment: more than " + std::to_string(max_prompts) +
+                               " points or boxes in one request (server.max_prompts)");
+  }
   const std::string size = std::to_string(camera.width) + "x" + std::to_string(camera.height);
   if (mode == fslam_proto_SEGMENT_POINTS) {
     if (points.empty()) return core::fail(why, "segment: a point query needs at least one point (u, v)");
@@ -1080,7 +1097,7 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
   }
   std::vector<Eigen::Vector2d> points;
   std::vector<core::BoxPrompt> boxes;
-  if (!check_prompts(mode, query.points, query.boxes, view.camera, &points, &boxes, why)) return false;
+  if (!check_prompts(mode, query.points, query.boxes, view.camera, config_.max_prompts, &points, &boxes, why)) return false;
 
   const core::Rasterizer& rasterizer = *query_rasterizer_;
   constexpr float kMinAlpha = 0.5f;  // pixels less opaque than this show background, not an object
@@ -1205,6 +1222,10 @@ bool Server::load(const std::string& name, const std::string& folder, std::strin
     if (it->second->streaming) {
       return core::fail(why, "load map: map '" + name + "' has a streaming session; close it first");
     }
+  }
+  if (it == maps_.end() && maps_.size() >= config_.max_maps) {
+    return core::fail(why, "load map: the server holds its limit of " + std::to_string(config_.max_maps) +
+                               " maps (server.max_maps)");
   }
   // At start the directory does not exist yet: activate() claims every loaded map.
   if (directory_ && !directory_->may_claim(name, false, why)) return false;

@@ -431,6 +431,46 @@ TEST_F(Service, MalformedRequestsGetErrorResults) {
   EXPECT_EQ(kill(server_pid_, 0), 0);
 }
 
+// The bounds a client cannot push the server past (server.max_sessions / max_maps / max_prompts,
+// map names as folder names): each refusal is an error result naming the setting.
+TEST(ServiceLimits, SessionsMapsPromptsAndNamesAreBounded) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("limits").string();
+  const std::string prefix = "lim" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 6 --seed 2", &out, &err), 0) << err;
+  test::ScopedServer server("--prefix " + prefix +
+                                " --set server.max_sessions=1 --set server.max_maps=2 --set server.max_prompts=2",
+                            dir + "/server.log");
+  ASSERT_GT(server.pid(), 0);
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir + "/seq --prefix " + prefix +
+                            " --session s --map first",
+                        &out, &err),
+            0)
+      << out << err;
+  client::Client c(options_for(prefix));
+  EXPECT_FALSE(c.open_session("bad", "../x", 10000, &why));
+  EXPECT_NE(why.find("may not start with '.'"), std::string::npos) << why;
+  EXPECT_FALSE(c.open_session("bad", "a/b", 10000, &why));
+  EXPECT_NE(why.find("may hold only"), std::string::npos) << why;
+  ASSERT_TRUE(c.open_session("a", "second", 10000, &why)) << why;
+  EXPECT_FALSE(c.open_session("b", "third", 10000, &why));
+  EXPECT_NE(why.find("server.max_sessions"), std::string::npos) << why;
+  ASSERT_TRUE(c.close_session("a", 30000, &why)) << why;
+  EXPECT_FALSE(c.open_session("b", "third", 10000, &why));  // "first" and "second" are held
+  EXPECT_NE(why.find("server.max_maps"), std::string::npos) << why;
+  client::SegmentQuery q;
+  q.map_name = "first";
+  q.mode = client::SegmentMode::points;
+  q.view.from_frame = true;
+  q.view.frame_id = 3;
+  q.points = {10, 10, 20, 20, 30, 30};
+  client::SegmentOutput seg;
+  EXPECT_FALSE(c.segment(q, &seg, 20000, &why));
+  EXPECT_NE(why.find("server.max_prompts"), std::string::npos) << why;
+  EXPECT_EQ(kill(server.pid(), 0), 0);
+}
+
 // A saved map is served again after a server restart, and renders exactly as before.
 TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   test::use_loopback_dds();

@@ -72,6 +72,10 @@ struct ServerConfig {
   int query_threads = 1;                        // render / segment / save / load requests in parallel
   std::size_t query_queue_capacity = 16;        // requests waiting; more are refused as busy
   std::uint32_t max_render_pixels = 4096 * 4096;
+  // Bounds a client cannot push the server past (each refused with an error naming the setting).
+  std::size_t max_sessions = 16;                // streaming sessions at once
+  std::size_t max_maps = 64;                    // maps held in memory (streamed, loaded)
+  std::size_t max_prompts = 64;                 // points or boxes in one segment request
   // Text segmentation queries: a grounding detector (grounding.hpp, docs/segmentation.md).
   // Empty: text queries get an error result saying to set it.
   std::string grounding_model;
