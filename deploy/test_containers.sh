@@ -24,6 +24,8 @@
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# shellcheck source=../tests/common/script_support.sh
+source "$ROOT/tests/common/script_support.sh"  # tracked_all
 CACHE="$ROOT/out/containers"
 FRAMES=60
 JOBS="$(nproc)"
@@ -165,9 +167,7 @@ client stream "fslam synth --out /tmp/room --frames $FRAMES --seed 2 \
   && fslam render --map room --frame $((FRAMES / 2)) --prefix $PREFIX --out /out/before_restart.png \
   && fslam save-map --map room --prefix $PREFIX"
 grep -E "frames sent|ATE" "$RUN/stream.txt"
-python3 -c 'import json, sys; r = json.load(open(sys.argv[1])); sys.exit(r["tracked"] != int(sys.argv[2]))' \
-  "$RUN/stream.json" "$FRAMES" \
-  || { echo "FAILED: not every pose arrived"; exit 1; }
+tracked_all "$RUN/stream.json" "$FRAMES" || { echo "FAILED: not every pose arrived"; exit 1; }
 [[ -s "$RUN/before_restart.png" ]] || { echo "FAILED: no render"; exit 1; }
 
 log "restart the server container (it saves on SIGTERM; the map stays in the volume)"

@@ -219,12 +219,7 @@ int run_stream(const StreamArgs& args) {
   // Wait for every frame's outcome: a pose, a skip, or an error saying why not.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(args.timeout_s);
   for (;;) {
-    std::size_t have = 0;
-    {
-      std::lock_guard<std::mutex> lock(mutex);
-      have = poses.size() + skipped.size();
-    }
-    if (have + errors.load() >= n || std::chrono::steady_clock::now() > deadline) break;
+    if (answered() >= n || std::chrono::steady_clock::now() > deadline) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   auto last_pose = start;

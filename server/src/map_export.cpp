@@ -30,16 +30,12 @@ void encode_gaussian_records(const core::GaussianMap& map, std::size_t first, st
     const std::size_t i = first + n;
     std::uint8_t* r = out->data() + start + n * kGaussianRecordBytes;
     for (int k = 0; k < 3; ++k) put_float(map.means[3 * i + k], r + 4 * k);
-    // The 3D smoothing filter as the rasteriser applies it (splat_math.hpp, project_gaussian):
+    // The 3D smoothing filter as the rasteriser applies it (splat_math.hpp, filtered_scales):
     // variance added to every axis, opacity scaled to keep the Gaussian's mass.
     const float filter = map.filter_3d.empty() ? 0.0f : map.filter_3d[i];
-    float filter_coef = 1.0f;
-    for (int k = 0; k < 3; ++k) {
-      const float scale = std::exp(map.log_scales[3 * i + k]);
-      const float scale_eff = std::sqrt(scale * scale + filter);
-      filter_coef *= scale / scale_eff;
-      put_float(scale_eff, r + 12 + 4 * k);
-    }
+    float scale[3], scale_eff[3];
+    const float filter_coef = core::math::filtered_scales(&map.log_scales[3 * i], filter, scale, scale_eff);
+    for (int k = 0; k < 3; ++k) put_float(scale_eff[k], r + 12 + 4 * k);
     const float* q = &map.rotations[4 * i];
     const float norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
     for (int k = 0; k < 4; ++k) {

@@ -25,9 +25,14 @@ GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& 
   const std::size_t n = map.size();
   const float epsilon = preprocess.covariance.plane_epsilon;
   const int D = map.features.empty() ? 0 : map.feature_dim;
-  // Candidates and their opacity, then most opaque first: the LocalMap's thinning keeps the
-  // first of two Gaussians closer than min_point_distance.
-  std::vector<std::pair<float, std::size_t>> order;
+  // Candidates with their opacity and axis variances (one pass over the map), then most opaque
+  // first: the LocalMap's thinning keeps the first of two Gaussians closer than min_point_distance.
+  struct Candidate {
+    float opacity;
+    std::size_t index;
+    Eigen::Vector3f variance;  // scale^2 + filter variance per axis
+  };
+  std::vector<Candidate> order;
   order.reserve(n);
   const float radius2 = radius * radius;
   for (std::size_t i = 0; i < n; ++i) {
@@ -35,34 +40,28 @@ GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& 
     if ((mean - centre_world).squaredNorm() > radius2) continue;
     // Effective opacity as the renderer composites it (3D filter compensation).
     const float filter = map.filter_3d.empty() ? 0.0f : map.filter_3d[i];
-    float coef = 1.0f;
-    for (int k = 0; k < 3; ++k) {
-      const float s = std::exp(map.log_scales[3 * i + k]);
-      coef *= s / std::sqrt(s * s + filter);
-    }
+    float scale[3], scale_eff[3];
+    const float coef = math::filtered_scales(&map.log_scales[3 * i], filter, scale, scale_eff);
     const float opacity = math::sigmoid(map.opacity_logits[i]) * coef;
     if (opacity < config.min_opacity) continue;
-    order.push_back({opacity, i});
+    order.push_back({opacity, i,
+                     Eigen::Vector3f(scale[0] * scale[0] + filter, scale[1] * scale[1] + filter,
+                                     scale[2] * scale[2] + filter)});
   }
-  std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) {
-    return a.first > b.first || (a.first == b.first && a.second < b.second);
+  std::sort(order.begin(), order.end(), [](const Candidate& a, const Candidate& b) {
+    return a.opacity > b.opacity || (a.opacity == b.opacity && a.index < b.index);
   });
   out.reserve(order.size());
   out.opacities.reserve(order.size());
   out.feature_dim = D;
   if (D > 0) out.features.reserve(order.size() * static_cast<std::size_t>(D));
-  for (const auto& [opacity, i] : order) {
+  for (const auto& [opacity, i, axis_variance] : order) {
     const Eigen::Vector3f mean(map.means[3 * i], map.means[3 * i + 1], map.means[3 * i + 2]);
     float q[4] = {map.rotations[4 * i], map.rotations[4 * i + 1], map.rotations[4 * i + 2],
                   map.rotations[4 * i + 3]};
     float R[9];
     math::quat_to_rotmat(q, R);
-    const float filter = map.filter_3d.empty() ? 0.0f : map.filter_3d[i];
-    Eigen::Vector3f variance;
-    for (int k = 0; k < 3; ++k) {
-      const float s = std::exp(map.log_scales[3 * i + k]);
-      variance[k] = s * s + filter;
-    }
+    Eigen::Vector3f variance = axis_variance;
     const Eigen::Map<const Eigen::Matrix<float, 3, 3, Eigen::RowMajor>> Rg(R);
     if (config.unit_discs) {
       // The surface the Gaussian stands for, as the source's: a unit disc across its thinnest

@@ -303,6 +303,20 @@ FSLAM_HD void clamp_to_view(const SplatCamera<T>& cam, T* tx, T* ty, bool* clamp
   *ty = *ty < lo_y ? lo_y : (*ty > hi_y ? hi_y : *ty);
 }
 
+// The 3D smoothing filter (Mip-Splatting) on one Gaussian: scale = exp(log_scale), effective
+// scales sqrt(scale^2 + filter variance), and the returned opacity compensation
+// prod scale / scale_eff that keeps the Gaussian's mass.
+template <typename T>
+FSLAM_HD T filtered_scales(const T log_scale[3], T filter_variance, T scale[3], T scale_eff[3]) {
+  T coef = T(1);
+  for (int k = 0; k < 3; ++k) {
+    scale[k] = exp(log_scale[k]);
+    scale_eff[k] = sqrt(scale[k] * scale[k] + filter_variance);
+    coef *= scale[k] / scale_eff[k];
+  }
+  return coef;
+}
+
 // Projects one Gaussian (eq. proj) and computes its opacity, planar depth coefficients and
 // colour. sh: [K, 3]. Returns false when culled (behind the near plane, degenerate, invisible).
 template <typename T>
@@ -319,12 +333,7 @@ FSLAM_HD bool project_gaussian(const T mean[3], const T quat[4], const T log_sca
 
   // 3D covariance Sigma = R_g S S R_g^T with the 3D smoothing filter added to S^2.
   quat_to_rotmat(quat, p.R_g);
-  p.filter_coef = T(1);
-  for (int k = 0; k < 3; ++k) {
-    p.scale[k] = exp(log_scale[k]);
-    p.scale_eff[k] = sqrt(p.scale[k] * p.scale[k] + filter_variance);
-    p.filter_coef *= p.scale[k] / p.scale_eff[k];
-  }
+  p.filter_coef = filtered_scales(log_scale, filter_variance, p.scale, p.scale_eff);
   T M[9];
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) M[3 * r + c] = p.R_g[3 * r + c] * p.scale_eff[c];
