@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include "fslam/core/eval/percentile.hpp"
+
 namespace CLI {
 class App;
 }
@@ -33,9 +35,7 @@ void add_map_commands(CLI::App& root, CommandList* commands);  // status, save-m
 void add_segment_eval_command(CLI::App& root, CommandList* commands);
 void add_train_autoencoder_command(CLI::App& root, CommandList* commands);
 
-// The q-quantile (0..1) of `values` by linear interpolation between order statistics (numpy's
-// default); 0 for an empty vector.
-double percentile(std::vector<double> values, double q);
+using core::percentile;  // fslam/core/eval/percentile.hpp
 
 // Prints "fslam: error: <message>" to stderr and returns exit code 1.
 int fail(const std::string& message);

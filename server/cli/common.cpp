@@ -15,15 +15,6 @@ double now_s() {
 }
 }  // namespace
 
-double percentile(std::vector<double> values, double q) {
-  if (values.empty()) return 0.0;
-  std::sort(values.begin(), values.end());
-  const double position = q * static_cast<double>(values.size() - 1);
-  const std::size_t lo = static_cast<std::size_t>(position);
-  const std::size_t hi = std::min(lo + 1, values.size() - 1);
-  return values[lo] + (position - static_cast<double>(lo)) * (values[hi] - values[lo]);
-}
-
 int fail(const std::string& message) {
   std::cerr << "fslam: error: " << message << std::endl;
   return 1;

@@ -17,6 +17,7 @@
 #include <tbb/task_arena.h>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/eval/percentile.hpp"
 #include "fslam/core/segmentation/segmentation.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/frame_codec.hpp"
@@ -121,12 +122,6 @@ constexpr std::size_t kTimingWindow = 1000;
 void record(std::deque<double>* window, double ms) {
   window->push_back(ms);
   if (window->size() > kTimingWindow) window->pop_front();
-}
-
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[static_cast<std::size_t>(q * static_cast<double>(v.size() - 1) + 0.5)];
 }
 
 std::uint64_t resident_bytes() {
@@ -465,7 +460,7 @@ void Server::publish_status() {
       reason = s->last_drop_reason;
       skip_reason = s->last_skip_reason;
       auto p = [](const std::deque<double>& w, double q) {
-        return static_cast<float>(quantile(std::vector<double>(w.begin(), w.end()), q));
+        return static_cast<float>(core::percentile(std::vector<double>(w.begin(), w.end()), q));
       };
       st.decode_ms_p50 = p(s->decode_ms, 0.5);
       st.decode_ms_p99 = p(s->decode_ms, 0.99);
