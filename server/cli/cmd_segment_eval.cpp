@@ -97,7 +97,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
     view.camera = dataset->camera();
     view.T_camera_world = pose->T_world_camera.inverse();
     cv::Mat ids;
-    if (!core::render_labels(*rasterizer, map, labels, view, 0.5f, &ids, &why)) return fail(why);
+    if (!core::render_labels(*rasterizer, map, labels, view, core::kMinObjectAlpha, &ids, &why)) return fail(why);
     if (truth.type() != CV_16UC1) truth.convertTo(truth, CV_16UC1);
     if (!core::accumulate_instance_overlap(ids, truth, match, &overlap, &why)) return fail(why);
 
@@ -121,7 +121,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
       cv::Mat mask;
       std::string click_why;
       if (!prompts.select_by_points(*rasterizer, view, {{at.x, at.y}}, &selected, &click_why) ||
-          !core::render_selection(*rasterizer, map, selected, view, 0.5f, &mask, &why)) {
+          !core::render_selection(*rasterizer, map, selected, view, core::kMinObjectAlpha, &mask, &why)) {
         ++failed_clicks;  // scored as IoU 0: the click found nothing
         click_iou.push_back(0.0);
         click_log.push_back({{"frame", i}, {"id", id}, {"u", at.x}, {"v", at.y}, {"iou", 0.0}});

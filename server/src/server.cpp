@@ -1095,7 +1095,6 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
   if (!check_prompts(mode, query.points, query.boxes, view.camera, config_.max_prompts, &points, &boxes, why)) return false;
 
   const core::Rasterizer& rasterizer = *query_rasterizer_;
-  constexpr float kMinAlpha = 0.5f;  // pixels less opaque than this show background, not an object
   std::uint64_t version_number = map.versions().version_number();
   core::MapVersions::Version version = map.versions().latest();
   cv::Mat labels_image;  // CV_16UC1 ids + 1, or CV_8UC1 mask
@@ -1125,7 +1124,7 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
       labels = cache.labels;
     }
     cv::Mat ids;  // CV_32SC1, -1 = none
-    if (!core::render_labels(rasterizer, *version, *labels, out_view, kMinAlpha, &ids, why)) return false;
+    if (!core::render_labels(rasterizer, *version, *labels, out_view, core::kMinObjectAlpha, &ids, why)) return false;
     // On the wire: id + 1 in 16 bits, 0 = none; ids beyond 16 bits saturate (never seen in practice).
     ids.convertTo(labels_image, CV_16UC1, 1.0, 1.0);
   } else {
@@ -1162,7 +1161,7 @@ bool Server::segment(const Query& query, MapEntry& map, fslam_proto_Result* resu
         for (std::size_t i = 0; i < one.size(); ++i) selected[i] |= one[i];
       }
     }
-    if (!core::render_selection(rasterizer, *version, selected, out_view, kMinAlpha, &labels_image, why)) {
+    if (!core::render_selection(rasterizer, *version, selected, out_view, core::kMinObjectAlpha, &labels_image, why)) {
       return false;
     }
   }

@@ -235,7 +235,7 @@ bool prompt_at(const FeatureSpace& space, const PromptView& pv, const RenderView
   const RenderResult& r = pv.render;
   if (u < 0 || v < 0 || u >= r.alpha.width || v >= r.alpha.height) return false;
   const float alpha = r.alpha.at(0, v, u), depth = r.median_depth.at(0, v, u);
-  if (alpha < 0.5f || depth <= 0.0f) return false;
+  if (alpha < kMinObjectAlpha || depth <= 0.0f) return false;
   std::vector<float> f(static_cast<std::size_t>(space.dim()));
   for (int c = 0; c < space.dim(); ++c) f[c] = r.features.at(c, v, u) / alpha;
   zp->resize(f.size());

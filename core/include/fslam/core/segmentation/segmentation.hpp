@@ -53,6 +53,10 @@ bool cluster_instances(const GaussianMap& map, const PromptlessConfig& config,
 void carry_instance_ids(const GaussianMap& previous_map, const GaussianLabels& previous,
                         const GaussianMap& map, float radius, GaussianLabels* labels);
 
+// Pixels less opaque than this show background, not an object: the cut of every rendered label,
+// selection mask and point prompt.
+inline constexpr float kMinObjectAlpha = 0.5f;
+
 // Renders per-pixel labels: the label whose Gaussians contribute the most opacity to the pixel,
 // -1 where the accumulated opacity of labelled Gaussians is below min_alpha. ids: CV_32SC1.
 bool render_labels(const Rasterizer& rasterizer, const GaussianMap& map, const GaussianLabels& labels,
