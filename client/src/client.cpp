@@ -234,21 +234,37 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
   }
   // Wait for discovery both ways (a server's reader of the request and its writer of results:
   // results are volatile, so one sent before the server's writer matched our reader is lost),
-  // then send once and wait for the answer.
+  // then send and wait for the answer. When a new server reader matches meanwhile (the server
+  // restarted, or another instance took over), the request goes again with the same id: the
+  // server answers a repeated id once (docs/protocol.md "Resending").
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
   dds_publication_matched_status_t matched{};
   dds_subscription_matched_status_t answering{};
-  for (;;) {
+  const auto both_matched = [&] {
     dds_get_publication_matched_status(writer, &matched);
     dds_get_subscription_matched_status(result_reader_.get(), &answering);
-    if ((matched.current_count > 0 && answering.current_count > 0) || std::chrono::steady_clock::now() >= deadline) {
-      break;
-    }
+    return matched.current_count > 0 && answering.current_count > 0;
+  };
+  while (!both_matched() && std::chrono::steady_clock::now() < deadline) {
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  const bool sent = matched.current_count > 0 && dds_write(writer, sample) == DDS_RETCODE_OK;
+  bool sent = matched.current_count > 0 && dds_write(writer, sample) == DDS_RETCODE_OK;
+  std::uint32_t readers_seen = matched.total_count;
+  bool arrived = false;
+  while (sent && !arrived) {
+    const auto slice = std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(100));
+    {
+      std::unique_lock<std::mutex> lock(callback_mutex_);
+      arrived = result_arrived_.wait_until(lock, slice, [&] { return awaited_[key]->arrived; });
+    }
+    if (arrived || std::chrono::steady_clock::now() >= deadline) break;
+    if (both_matched() && matched.total_count > readers_seen) {
+      readers_seen = matched.total_count;
+      if (dds_write(writer, sample) == DDS_RETCODE_OK) resends_.fetch_add(1, std::memory_order_relaxed);
+    }
+  }
   std::unique_lock<std::mutex> lock(callback_mutex_);
-  const bool arrived = sent && result_arrived_.wait_until(lock, deadline, [&] { return awaited_[key]->arrived; });
+  arrived = arrived || awaited_[key]->arrived;
   std::unique_ptr<Answer> got = std::move(awaited_[key]);
   awaited_.erase(key);
   if (!arrived) {

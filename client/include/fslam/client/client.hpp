@@ -219,6 +219,8 @@ class Client {
                 std::string* why);
   // This client's name on fslam/requests (host, process and instance).
   const std::string& id() const { return id_; }
+  // Requests sent again because a new server matched before they were answered.
+  std::uint64_t resends() const { return resends_.load(std::memory_order_relaxed); }
 
   // Called on the client's listener thread for every pose the server publishes.
   void on_pose(std::function<void(const PoseUpdate&)> callback);
@@ -235,7 +237,8 @@ class Client {
   void listen();
   bool control(const std::string& session, const std::string& map_name, bool open, bool attach_only,
                FramePolicy policy, int timeout_ms, std::string* why);
-  // Sends `sample` with `writer` once a server matched, and waits for the result (client, id).
+  // Sends `sample` with `writer` once a server matched, and waits for the result (client, id);
+  // sends it again, same id, whenever a new server reader matches before the answer came.
   bool call(dds_entity_t writer, const void* sample, const std::string& client, std::uint64_t id,
             const std::string& what, int timeout_ms, Answer* answer, std::string* why);
   std::uint64_t new_request_id();
@@ -257,6 +260,7 @@ class Client {
   std::set<std::string> addresses_;  // result `client` values meant for us: id_ and our sessions
   std::uint64_t next_request_ = 1ull << 62;  // apart from frame ids, which frame results echo
   std::atomic<bool> stop_{false};
+  std::atomic<std::uint64_t> resends_{0};
   std::thread listener_;
 };
 
