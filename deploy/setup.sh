@@ -12,6 +12,11 @@
 #          --out DIR (demo output, default out/demo)  --no-install (skip apt)
 #          --k8s-check (also: node + npm ci in deploy/k8s/validate, for the Kubernetes manifest
 #          test; containers are deploy/test_containers.sh, opt-in and separate)
+#          --fuzz-seconds N (--test: after ctest, every libFuzzer target runs N s over its seed
+#          corpus, tests/fuzz/run_fuzz.sh; default 10, 0 = skip)
+#          --sanitize address|thread (an instrumented build in build-asan / build-tsan; with
+#          --test: the whole suite under ASan + UBSan, or the threaded server tests under TSan;
+#          docs/reliability.md)
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -22,6 +27,9 @@ CUDA=AUTO
 OUT="$ROOT/out/demo"
 INSTALL=1
 K8S_CHECK=0
+FUZZ_SECONDS=10
+SANITIZE=""
+BUILD_DIR_SET=0
 
 usage() { awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
 
@@ -31,12 +39,14 @@ while [[ $# -gt 0 ]]; do
     --test) MODE=test ;;
     --build-only) MODE=build ;;
     --install-only) MODE=install ;;
-    --build-dir) BUILD_DIR="$(realpath -m "$2")"; shift ;;
+    --build-dir) BUILD_DIR="$(realpath -m "$2")"; BUILD_DIR_SET=1; shift ;;
     --jobs) JOBS="$2"; shift ;;
     --cuda) CUDA="$2"; shift ;;
     --out) OUT="$(realpath -m "$2")"; shift ;;
     --no-install) INSTALL=0 ;;
     --k8s-check) K8S_CHECK=1 ;;
+    --fuzz-seconds) FUZZ_SECONDS="$2"; shift ;;
+    --sanitize) SANITIZE="$2"; shift ;;
     -h|--help) usage; exit 0 ;;
     *) echo "setup.sh: unknown option '$1'" >&2; usage >&2; exit 2 ;;
   esac
@@ -44,6 +54,13 @@ while [[ $# -gt 0 ]]; do
 done
 
 log() { printf '\n== %s\n' "$*"; }
+
+case "$SANITIZE" in
+  "") ;;
+  address) [[ $BUILD_DIR_SET -eq 1 ]] || BUILD_DIR="$ROOT/build-asan"; CUDA=OFF ;;
+  thread) [[ $BUILD_DIR_SET -eq 1 ]] || BUILD_DIR="$ROOT/build-tsan"; CUDA=OFF ;;
+  *) echo "setup.sh: --sanitize takes address or thread, not '$SANITIZE'" >&2; exit 2 ;;
+esac
 
 # Debian 12 packages of the product (see ../shared/platform.md for what each is for).
 PACKAGES=(
@@ -61,6 +78,8 @@ PACKAGES=(
 # chromium (installed for --test only: about 80 MB, 47 s on dev-2c).
 VIEWER_PACKAGES=(nodejs npm)
 TEST_PACKAGES=(chromium)
+# The libFuzzer targets (tests/fuzz) build with Debian's clang and its compiler-rt.
+FUZZ_PACKAGES=(clang libclang-rt-14-dev)
 
 install_packages() { install_missing "${PACKAGES[@]}"; }
 
@@ -90,9 +109,9 @@ build() {
   if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
     log "configure ($BUILD_DIR, CUDA $CUDA)"
     cmake -S "$ROOT" -B "$BUILD_DIR" "${generator[@]}" -DCMAKE_BUILD_TYPE=Release \
-      -DFSLAM_WITH_CUDA="$CUDA"
+      -DFSLAM_WITH_CUDA="$CUDA" -DFSLAM_SANITIZE="$SANITIZE"
   else
-    cmake "$BUILD_DIR" -DFSLAM_WITH_CUDA="$CUDA" >/dev/null
+    cmake "$BUILD_DIR" -DFSLAM_WITH_CUDA="$CUDA" -DFSLAM_SANITIZE="$SANITIZE" >/dev/null
   fi
   log "build ($JOBS jobs)"
   local t0=$SECONDS
@@ -134,8 +153,26 @@ run_tests() {
   else
     echo "real data: $data is absent; tests that need it will be skipped"
   fi
+  if [[ "$SANITIZE" == thread ]]; then
+    # The threaded server: sessions, ingest, queries and the mapping thread (docs/reliability.md).
+    log "tests under TSan (the threaded server tests, $JOBS jobs, DDS on loopback)"
+    TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1" \
+      ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 1800 \
+      -R '^(Service|ServiceLimits|Server|MappingThread|SlamPipeline|MapFiles)\.'
+    return
+  fi
+  if [[ "$SANITIZE" == address ]]; then
+    log "tests under ASan + UBSan ($JOBS jobs, DDS on loopback)"
+    export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1" UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
+    ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 1800
+    return
+  fi
   log "tests (ctest, $JOBS jobs, DDS on loopback)"
   ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 900
+  if [[ "$FUZZ_SECONDS" -gt 0 ]]; then
+    log "fuzz smoke: every libFuzzer target for $FUZZ_SECONDS s (tests/fuzz/run_fuzz.sh)"
+    bash "$ROOT/tests/fuzz/run_fuzz.sh" --seconds "$FUZZ_SECONDS" --jobs "$JOBS"
+  fi
 }
 
 # The main job, end to end over DDS: a server on the loopback profile (features on), the
@@ -267,6 +304,7 @@ install_k8s_check() {
 [[ $K8S_CHECK -eq 1 ]] && install_k8s_check
 [[ "$MODE" == install ]] && exit 0
 [[ $INSTALL -eq 1 && "$MODE" == test ]] && install_missing "${TEST_PACKAGES[@]}"
+[[ $INSTALL -eq 1 && "$MODE" == test && "$FUZZ_SECONDS" -gt 0 && -z "$SANITIZE" ]] && install_missing "${FUZZ_PACKAGES[@]}"
 build
 bundle_viewer
 case "$MODE" in
