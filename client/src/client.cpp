@@ -19,6 +19,10 @@
 namespace fslam::client {
 namespace {
 
+// Frames written and not yet acknowledged by the server's reader: past it push_frame waits up to
+// 1 s for the server to catch up, then fails (docs/protocol.md "Flow control").
+constexpr std::int32_t kFramesInFlight = 16;
+
 bool fail(std::string* why, const std::string& message) {
   if (why) *why = message;
   return false;
@@ -145,7 +149,7 @@ Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   request_writer_ = make_writer(participant_, requests_topic_, Delivery::reliable);
   try {
     frames_topic_ = make_topic(participant_, &fslam_proto_Frame_desc, prefix, "frames");
-    frame_writer_ = make_writer(participant_, frames_topic_, Delivery::reliable);
+    frame_writer_ = make_bounded_writer(participant_, frames_topic_, kFramesInFlight);
   } catch (const DdsError& e) {
     // DDS Security (configs/dds/secure.xml): a client whose permissions do not let it write
     // frames may still query maps; push_frame says why it cannot stream.
@@ -596,6 +600,10 @@ bool Client::push_frame(const std::string& session, const FrameInput& frame, std
   for (int i = 0; i < 3; ++i) msg.gt_pose.translation[i] = frame.gt_translation[i];
   for (int i = 0; i < 4; ++i) msg.gt_pose.rotation[i] = frame.gt_rotation[i];
   const dds_return_t rc = dds_write(frame_writer_.get(), &msg);
+  if (rc == DDS_RETCODE_TIMEOUT) {
+    return fail(why, "push_frame: the server has not taken the last " + std::to_string(kFramesInFlight) +
+                         " frames for 1 s; frame " + std::to_string(frame.frame_id) + " not sent");
+  }
   if (rc != DDS_RETCODE_OK) {
     return fail(why, std::string("push_frame: DDS write failed: ") + dds_strretcode(rc));
   }

@@ -58,6 +58,20 @@ Entity make_reader(const Entity& participant, const Entity& topic, Delivery deli
   return Entity(check_dds(dds_create_reader(participant.get(), topic.get(), qos.qos, nullptr), "create reader"));
 }
 
+Entity make_bounded_reader(const Entity& participant, const Entity& topic, std::int32_t max_samples) {
+  const Qos qos(Delivery::reliable);
+  dds_qset_history(qos.qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_resource_limits(qos.qos, max_samples, DDS_LENGTH_UNLIMITED, max_samples);
+  return Entity(check_dds(dds_create_reader(participant.get(), topic.get(), qos.qos, nullptr), "create reader"));
+}
+
+Entity make_bounded_writer(const Entity& participant, const Entity& topic, std::int32_t max_samples) {
+  const Qos qos(Delivery::reliable);
+  dds_qset_history(qos.qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_resource_limits(qos.qos, max_samples, DDS_LENGTH_UNLIMITED, max_samples);
+  return Entity(check_dds(dds_create_writer(participant.get(), topic.get(), qos.qos, nullptr), "create writer"));
+}
+
 Entity make_writer(const Entity& participant, const Entity& topic, Delivery delivery) {
   const Qos qos(delivery);
   return Entity(check_dds(dds_create_writer(participant.get(), topic.get(), qos.qos, nullptr), "create writer"));

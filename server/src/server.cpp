@@ -305,7 +305,7 @@ bool Server::activate(std::string* why) {
     requests_topic_ = client::make_topic(participant_, &fslam_proto_Request_desc, prefix, "requests");
     results_topic_ = client::make_topic(participant_, &fslam_proto_Result_desc, prefix, "results");
     status_topic_ = client::make_topic(participant_, &fslam_proto_SessionStatus_desc, prefix, "status");
-    frame_reader_ = client::make_reader(participant_, frames_topic_, Delivery::reliable);
+    frame_reader_ = client::make_bounded_reader(participant_, frames_topic_, 8);
     control_reader_ = client::make_reader(participant_, control_topic_, Delivery::reliable);
     request_reader_ = client::make_reader(participant_, requests_topic_, Delivery::reliable);
     pose_writer_ = client::make_writer(participant_, poses_topic_, Delivery::reliable);

@@ -62,6 +62,14 @@ enum class Delivery { reliable, best_effort, durable };
 Entity make_topic(const Entity& participant, const dds_topic_descriptor_t* desc,
                   const std::string& prefix, const char* name);
 Entity make_reader(const Entity& participant, const Entity& topic, Delivery delivery);
+// A reliable reader that holds at most `max_samples` samples not taken yet (DDS resource limits):
+// past it, the protocol holds writers back instead of the reader's memory growing with a
+// writer that outpaces it.
+Entity make_bounded_reader(const Entity& participant, const Entity& topic, std::int32_t max_samples);
+// A reliable writer that holds at most `max_samples` samples not acknowledged by every reader yet:
+// a write past it waits up to the reliability's blocking time (1 s), then fails with
+// DDS_RETCODE_TIMEOUT, so a publisher faster than its readers cannot queue without bound.
+Entity make_bounded_writer(const Entity& participant, const Entity& topic, std::int32_t max_samples);
 Entity make_writer(const Entity& participant, const Entity& topic, Delivery delivery);
 // A waitset woken when any of `readers` has data.
 Entity make_waitset(const Entity& participant, std::initializer_list<const Entity*> readers);
