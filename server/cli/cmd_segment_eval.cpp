@@ -7,10 +7,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <map>
 #include <memory>
 #include <string>
-#include <tuple>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -25,9 +23,9 @@
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/image_io.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
-#include "fslam/core/segmentation/segmentation.hpp"
+#include "fslam/core/eval/view_eval.hpp"
+#include "fslam/core/segmentation/segmentation_eval.hpp"
 #include "fslam/server/backend_factory.hpp"
-#include "fslam/server/render_images.hpp"
 
 namespace fslam::cli {
 namespace {
@@ -37,12 +35,9 @@ namespace fs = std::filesystem;
 struct SegmentEvalArgs {
   DatasetArgs dataset;
   std::string ply, trajectory, out;
-  int every = 10, offset = 5;       // evaluated frames: positions offset, offset + every, ...
-  double min_object_share = 0.01;   // clicks only on objects covering this share of the view
   int threads = 2;
-  int overlays = 4;                 // views written to --out
-  core::PromptlessConfig promptless;
-  core::PromptConfig prompt;
+  int overlays = 4;  // views written to --out
+  core::SegmentationEvalConfig eval;
 };
 
 // A fixed colour per id for overlays.
@@ -51,6 +46,77 @@ cv::Vec3b id_colour(int id) {
   const unsigned h = static_cast<unsigned>(id) * 2654435761u;
   return {static_cast<uchar>(64 + (h & 0x7f)), static_cast<uchar>(64 + ((h >> 8) & 0x7f)),
           static_cast<uchar>(64 + ((h >> 16) & 0x7f))};
+}
+
+// promptless_<frame>.png: the render, its instances over it, the ground truth; clicks_<frame>.png:
+// the one-click masks over the colour (each in its object's ground-truth colour, outlined; the
+// click is the ringed dot) beside the ground truth.
+bool write_overlays(const std::string& folder, const core::Rasterizer& rasterizer,
+                    const core::GaussianMap& map, const core::SegmentationView& view, std::string* why) {
+  core::RenderResult r;
+  core::RenderSettings settings;
+  settings.features = false;
+  if (!rasterizer.forward(map, view.view, settings, &r, why)) return false;
+  const cv::Mat& ids = view.instance_ids;
+  const cv::Mat& truth = view.truth;
+  cv::Mat colour = core::colour_to_rgb8(r.colour), coded(ids.size(), CV_8UC3), truth_coded(ids.size(), CV_8UC3);
+  for (int v = 0; v < ids.rows; ++v)
+    for (int u = 0; u < ids.cols; ++u) {
+      coded.at<cv::Vec3b>(v, u) = id_colour(ids.at<int>(v, u));
+      truth_coded.at<cv::Vec3b>(v, u) = id_colour(truth.at<std::uint16_t>(v, u) + 1000);
+    }
+  cv::Mat blended, panel;
+  cv::addWeighted(colour, 0.5, coded, 0.5, 0.0, blended);
+  cv::hconcat(std::vector<cv::Mat>{colour, blended, truth_coded}, panel);
+  char name[64];
+  std::snprintf(name, sizeof name, "promptless_%06zu.png", view.frame);
+  if (!core::write_image((fs::path(folder) / name).string(), panel, why)) return false;
+  // Largest mask first, so where masks overlap the smaller one shows.
+  std::vector<const core::SegmentationView::Click*> clicks;
+  for (const auto& c : view.clicks) clicks.push_back(&c);
+  std::stable_sort(clicks.begin(), clicks.end(), [](const auto* a, const auto* b) {
+    return cv::countNonZero(a->mask) > cv::countNonZero(b->mask);
+  });
+  cv::Mat click_paint = cv::Mat::zeros(truth.size(), CV_8UC3);
+  for (const auto* c : clicks) {
+    click_paint.setTo(id_colour(c->id + 1000), c->mask);
+    std::vector<std::vector<cv::Point>> outline;
+    cv::findContours(c->mask.clone(), outline, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
+    cv::drawContours(click_paint, outline, -1, cv::Scalar(0, 0, 0), 1);
+  }
+  cv::addWeighted(colour, 0.5, click_paint, 0.5, 0.0, blended);
+  for (const auto& c : view.clicks) {
+    cv::circle(blended, c.at, 5, cv::Scalar(0, 0, 0), 2);
+    cv::circle(blended, c.at, 3, cv::Scalar(255, 255, 255), cv::FILLED);
+  }
+  cv::hconcat(std::vector<cv::Mat>{blended, truth_coded}, panel);
+  std::snprintf(name, sizeof name, "clicks_%06zu.png", view.frame);
+  return core::write_image((fs::path(folder) / name).string(), panel, why);
+}
+
+nlohmann::json report_json(const core::SegmentationEvalResult& result) {
+  nlohmann::json j;
+  j["views"] = result.views;
+  const core::InstanceMatchResult& score = result.promptless;
+  j["promptless"] = {{"miou", score.miou}, {"macc", score.macc}, {"instances_scored", score.iou.size()},
+                     {"instances_predicted", result.instances_predicted}};
+  nlohmann::json per;
+  for (const auto& [id, iou] : score.iou) per[std::to_string(id)] = iou;
+  j["promptless"]["iou_per_instance"] = per;
+  nlohmann::json clicks = nlohmann::json::array();  // per click: where, and how it went
+  for (const core::ClickScore& c : result.clicks) {
+    nlohmann::json one = {{"frame", c.frame}, {"id", c.id}, {"u", c.u}, {"v", c.v}, {"iou", c.iou}};
+    if (c.found) {
+      one["precision"] = c.precision;
+      one["recall"] = c.recall;
+      one["spill_id"] = c.spill_id;
+      one["spill_share"] = c.spill_share;
+    }
+    clicks.push_back(one);
+  }
+  j["one_click"] = {{"mean_iou", result.click_mean_iou()}, {"clicks", result.clicks.size()},
+                    {"failed", result.failed_clicks}, {"per_click", clicks}};
+  return j;
 }
 
 int run_segment_eval(const SegmentEvalArgs& args) {
@@ -65,7 +131,7 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   }
   core::Trajectory trajectory;
   if (!core::read_tum_trajectory(args.trajectory, &trajectory, &why)) return fail(why);
-  if (args.every < 1 || args.offset < 0) return fail("--every must be >= 1 and --offset >= 0");
+  if (!args.eval.is_valid()) return fail("--every must be >= 1 and --offset >= 0");
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               static_cast<std::size_t>(std::max(1, args.threads)));
   std::string notice;
@@ -73,146 +139,28 @@ int run_segment_eval(const SegmentEvalArgs& args) {
   if (!rasterizer) return fail(why);
   if (!args.out.empty()) fs::create_directories(args.out);
 
-  core::GaussianLabels labels;
-  if (!core::cluster_instances(map, args.promptless, &labels, &why)) return fail(why);
+  int overlays = 0;
+  core::SegmentationEvalResult result;
+  const bool ok = core::evaluate_segmentation(
+      *dataset, map, trajectory, *rasterizer, args.eval, &result, &why,
+      [&](const core::SegmentationView& view, std::string* vwhy) {
+        if (args.out.empty() || overlays >= args.overlays) return true;
+        ++overlays;
+        return write_overlays(args.out, *rasterizer, map, view, vwhy);
+      });
+  if (!ok) return fail(why);
   std::printf("map: %zu Gaussians, %d channels; promptless: %d instances\n", map.size(),
-              map.feature_dim, labels.count);
-
-  const core::PromptSelector prompts(map, args.prompt);  // one graph for every click
-  core::InstanceOverlap overlap;
-  core::InstanceMatchConfig match;
-  match.predicted_none = -1;  // pixels no instance claims: misses
-  std::vector<double> click_iou;
-  nlohmann::json click_log = nlohmann::json::array();  // per click: where, and how it went
-  std::size_t views = 0, failed_clicks = 0;
-  for (std::size_t i = static_cast<std::size_t>(args.offset); i < dataset->size();
-       i += static_cast<std::size_t>(args.every)) {
-    cv::Mat truth;
-    if (!dataset->load_labels(i, &truth, nullptr, &why) || truth.empty()) {
-      return fail("frame " + std::to_string(i) + " has no instance labels: " + why);
-    }
-    const core::StampedPose* pose = core::nearest_pose(trajectory, dataset->timestamp(i));
-    if (!pose) continue;  // untracked frame
-    core::RenderView view;
-    view.camera = dataset->camera();
-    view.T_camera_world = pose->T_world_camera.inverse();
-    cv::Mat ids;
-    if (!core::render_labels(*rasterizer, map, labels, view, core::kMinObjectAlpha, &ids, &why)) return fail(why);
-    if (truth.type() != CV_16UC1) truth.convertTo(truth, CV_16UC1);
-    if (!core::accumulate_instance_overlap(ids, truth, match, &overlap, &why)) return fail(why);
-
-    // One click per object covering enough of the view.
-    std::vector<int> present;
-    {
-      std::map<int, int> area;
-      for (int v = 0; v < truth.rows; ++v)
-        for (int u = 0; u < truth.cols; ++u) ++area[truth.at<std::uint16_t>(v, u)];
-      for (const auto& [id, n] : area)
-        if (id != 0 && n >= args.min_object_share * truth.total()) present.push_back(id);
-    }
-    const bool write_overlays = !args.out.empty() && static_cast<int>(views) < args.overlays;
-    std::vector<std::tuple<double, int, cv::Mat>> click_masks;  // (mask pixels, object id, mask) for the overlay
-    std::vector<cv::Point> clicks;
-    for (int id : present) {
-      const cv::Mat object = truth == id;
-      cv::Point at;
-      if (!core::click_point(object, 2.0, &at)) continue;
-      std::vector<std::uint8_t> selected;
-      cv::Mat mask;
-      std::string click_why;
-      if (!prompts.select_by_points(*rasterizer, view, {{at.x, at.y}}, &selected, &click_why) ||
-          !core::render_selection(*rasterizer, map, selected, view, core::kMinObjectAlpha, &mask, &why)) {
-        ++failed_clicks;  // scored as IoU 0: the click found nothing
-        click_iou.push_back(0.0);
-        click_log.push_back({{"frame", i}, {"id", id}, {"u", at.x}, {"v", at.y}, {"iou", 0.0}});
-        continue;
-      }
-      click_iou.push_back(std::max(0.0, core::mask_iou(mask, truth, id)));
-      // Precision and recall of the mask tell over-growth from under-growth.
-      const double in_mask = cv::countNonZero(mask), in_object = cv::countNonZero(object);
-      if (write_overlays) {
-        click_masks.push_back({in_mask, id, mask});
-        clicks.push_back(at);
-      }
-      const double both = cv::countNonZero(mask & object);
-      // The object the mask spills onto most, and that share of the mask: where a leak went.
-      std::map<int, int> spill;
-      for (int v = 0; v < truth.rows; ++v)
-        for (int u = 0; u < truth.cols; ++u) {
-          const int t = truth.at<std::uint16_t>(v, u);
-          if (mask.at<std::uint8_t>(v, u) && t != id) ++spill[t];
-        }
-      std::pair<int, int> most{-1, 0};
-      for (const auto& [t, n] : spill)
-        if (n > most.second) most = {t, n};
-      click_log.push_back({{"frame", i}, {"id", id}, {"u", at.x}, {"v", at.y}, {"iou", click_iou.back()},
-                           {"precision", in_mask > 0 ? both / in_mask : 0.0},
-                           {"recall", in_object > 0 ? both / in_object : 0.0},
-                           {"spill_id", most.first},
-                           {"spill_share", in_mask > 0 ? most.second / in_mask : 0.0}});
-    }
-    if (write_overlays) {
-      core::RenderResult r;
-      core::RenderSettings settings;
-      settings.features = false;
-      if (!rasterizer->forward(map, view, settings, &r, &why)) return fail(why);
-      cv::Mat colour = server::colour_to_rgb8(r.colour), coded(ids.size(), CV_8UC3), truth_coded(ids.size(), CV_8UC3);
-      for (int v = 0; v < ids.rows; ++v)
-        for (int u = 0; u < ids.cols; ++u) {
-          coded.at<cv::Vec3b>(v, u) = id_colour(ids.at<int>(v, u));
-          truth_coded.at<cv::Vec3b>(v, u) = id_colour(truth.at<std::uint16_t>(v, u) + 1000);
-        }
-      cv::Mat blended, panel;
-      cv::addWeighted(colour, 0.5, coded, 0.5, 0.0, blended);
-      cv::hconcat(std::vector<cv::Mat>{colour, blended, truth_coded}, panel);
-      char name[64];
-      std::snprintf(name, sizeof name, "promptless_%06zu.png", i);
-      if (!core::write_image((fs::path(args.out) / name).string(), panel, &why)) return fail(why);
-      // One-click masks over the colour (each in its object's ground-truth colour, outlined; the
-      // click is the ringed dot), beside the ground truth. Largest first, so where masks overlap
-      // the smaller one shows.
-      std::sort(click_masks.begin(), click_masks.end(),
-                [](const auto& a, const auto& b) { return std::get<0>(a) > std::get<0>(b); });
-      cv::Mat click_paint = cv::Mat::zeros(truth.size(), CV_8UC3);
-      for (const auto& [pixels, id, mask] : click_masks) {
-        click_paint.setTo(id_colour(id + 1000), mask);
-        std::vector<std::vector<cv::Point>> outline;
-        cv::findContours(mask.clone(), outline, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
-        cv::drawContours(click_paint, outline, -1, cv::Scalar(0, 0, 0), 1);
-      }
-      cv::addWeighted(colour, 0.5, click_paint, 0.5, 0.0, blended);
-      for (const cv::Point& at : clicks) {
-        cv::circle(blended, at, 5, cv::Scalar(0, 0, 0), 2);
-        cv::circle(blended, at, 3, cv::Scalar(255, 255, 255), cv::FILLED);
-      }
-      cv::hconcat(std::vector<cv::Mat>{blended, truth_coded}, panel);
-      std::snprintf(name, sizeof name, "clicks_%06zu.png", i);
-      if (!core::write_image((fs::path(args.out) / name).string(), panel, &why)) return fail(why);
-    }
-    ++views;
-  }
-  if (views == 0) return fail("no evaluated frame has a tracked pose in " + args.trajectory);
-  const core::InstanceMatchResult score = core::match_instances(overlap);
-  double click_mean = 0;
-  for (double v : click_iou) click_mean += v;
-  click_mean = click_iou.empty() ? 0.0 : click_mean / static_cast<double>(click_iou.size());
-  std::printf("views %zu (every %d frames from %d)\n", views, args.every, args.offset);
+              map.feature_dim, result.instances_predicted);
+  if (result.views == 0) return fail("no evaluated frame has a tracked pose in " + args.trajectory);
+  const core::InstanceMatchResult& score = result.promptless;
+  std::printf("views %zu (every %d frames from %d)\n", result.views, args.eval.every, args.eval.offset);
   std::printf("promptless: mIoU %.3f, mAcc %.3f over %zu ground-truth instances (%d predicted, "
               "%zu unmatched)\n",
-              score.miou, score.macc, score.iou.size(), labels.count, score.unmatched_predicted);
-  std::printf("one click per object: mean IoU %.3f over %zu clicks (%zu found nothing)\n", click_mean,
-              click_iou.size(), failed_clicks);
+              score.miou, score.macc, score.iou.size(), result.instances_predicted, score.unmatched_predicted);
+  std::printf("one click per object: mean IoU %.3f over %zu clicks (%zu found nothing)\n",
+              result.click_mean_iou(), result.clicks.size(), result.failed_clicks);
   if (!args.out.empty()) {
-    nlohmann::json j;
-    j["views"] = views;
-    j["promptless"] = {{"miou", score.miou}, {"macc", score.macc}, {"instances_scored", score.iou.size()},
-                       {"instances_predicted", labels.count}};
-    nlohmann::json per;
-    for (const auto& [id, iou] : score.iou) per[std::to_string(id)] = iou;
-    j["promptless"]["iou_per_instance"] = per;
-    j["one_click"] = {{"mean_iou", click_mean}, {"clicks", click_iou.size()}, {"failed", failed_clicks},
-                      {"per_click", click_log}};
-    std::ofstream(fs::path(args.out) / "segmentation.json") << j.dump(2) << "\n";
+    std::ofstream(fs::path(args.out) / "segmentation.json") << report_json(result).dump(2) << "\n";
     std::printf("wrote %s/segmentation.json and overlays\n", args.out.c_str());
   }
   return 0;
@@ -229,54 +177,54 @@ void add_segment_eval_command(CLI::App& root, CommandList* commands) {
   app->add_option("--ply", args->ply, "The map (fslam run --features ... writes map.ply)")->required();
   app->add_option("--trajectory", args->trajectory, "Poses of the map's frame (fslam run's trajectory.txt)")
       ->required();
-  app->add_option("--every", args->every, "Evaluate every N-th frame ...")->capture_default_str();
-  app->add_option("--offset", args->offset, "... starting at this position")->capture_default_str();
+  app->add_option("--every", args->eval.every, "Evaluate every N-th frame ...")->capture_default_str();
+  app->add_option("--offset", args->eval.offset, "... starting at this position")->capture_default_str();
   app->add_option("--out", args->out, "Folder for segmentation.json and overlays of the first views (promptless_*.png, clicks_*.png)");
   app->add_option("--threads", args->threads, "Rendering threads")->capture_default_str();
-  app->add_option("--feature-threshold", args->promptless.graph.feature_threshold,
+  app->add_option("--feature-threshold", args->eval.promptless.graph.feature_threshold,
                   "Promptless: RMS latent difference joining neighbours")
       ->capture_default_str();
-  app->add_option("--prompt-threshold", args->prompt.graph.feature_threshold,
+  app->add_option("--prompt-threshold", args->eval.prompt.graph.feature_threshold,
                   "Prompts: RMS latent difference to the prompt")
       ->capture_default_str();
-  app->add_option("--prompt-adaptive", args->prompt.adaptive_threshold,
+  app->add_option("--prompt-adaptive", args->eval.prompt.adaptive_threshold,
                   "Prompts: pick each prompt's threshold in [min, max] (else --prompt-threshold)")
       ->capture_default_str();
-  app->add_option("--prompt-min-threshold", args->prompt.min_threshold, "Prompts: adaptive range, tightest threshold")
+  app->add_option("--prompt-min-threshold", args->eval.prompt.min_threshold, "Prompts: adaptive range, tightest threshold")
       ->capture_default_str();
-  app->add_option("--prompt-max-threshold", args->prompt.max_threshold, "Prompts: adaptive range, loosest threshold")
+  app->add_option("--prompt-max-threshold", args->eval.prompt.max_threshold, "Prompts: adaptive range, loosest threshold")
       ->capture_default_str();
-  app->add_option("--prompt-min-jump", args->prompt.min_jump,
+  app->add_option("--prompt-min-jump", args->eval.prompt.min_jump,
                   "Prompts: growth ratio between thresholds that marks a leak")
       ->capture_default_str();
-  app->add_option("--prompt-min-contrast", args->prompt.min_contrast,
+  app->add_option("--prompt-min-contrast", args->eval.prompt.min_contrast,
                   "Prompts: a leak's additions lie at least this x the threshold from the region's mean latent")
       ->capture_default_str();
-  app->add_option("--prompt-smooth", args->prompt.smooth_growth,
+  app->add_option("--prompt-smooth", args->eval.prompt.smooth_growth,
                   "Prompts: growth along one smooth surface is no leak")
       ->capture_default_str();
-  app->add_option("--prompt-smooth-angle", args->prompt.smooth_max_angle_deg,
+  app->add_option("--prompt-smooth-angle", args->eval.prompt.smooth_max_angle_deg,
                   "Prompts: degrees between normals on one smooth surface")
       ->capture_default_str();
-  app->add_option("--prompt-smooth-offset", args->prompt.smooth_max_offset,
+  app->add_option("--prompt-smooth-offset", args->eval.prompt.smooth_max_offset,
                   "Prompts: metres off the tangent plane on one smooth surface")
       ->capture_default_str();
-  app->add_option("--prompt-flat-ratio", args->prompt.flat_ratio,
+  app->add_option("--prompt-flat-ratio", args->eval.prompt.flat_ratio,
                   "Prompts: smallest / middle scale below which a Gaussian has a normal")
       ->capture_default_str();
-  app->add_option("--prompt-bend-ratio", args->prompt.bend_ratio,
+  app->add_option("--prompt-bend-ratio", args->eval.prompt.bend_ratio,
                   "Prompts: across a bend or step a Gaussian joins within this x the threshold")
       ->capture_default_str();
-  app->add_option("--prompt-fill-rounds", args->prompt.fill_rounds,
+  app->add_option("--prompt-fill-rounds", args->eval.prompt.fill_rounds,
                   "Prompts: rounds of the refinement in 3D (a Gaussian joins when enough of its neighbours are in); 0 = none")
       ->capture_default_str();
-  app->add_option("--prompt-fill-fraction", args->prompt.fill_fraction,
+  app->add_option("--prompt-fill-fraction", args->eval.prompt.fill_fraction,
                   "Prompts: share of a Gaussian's neighbours inside the object that makes it join")
       ->capture_default_str();
-  app->add_option("--prompt-min-jump-region", args->prompt.min_jump_region,
+  app->add_option("--prompt-min-jump-region", args->eval.prompt.min_jump_region,
                   "Prompts: a jump counts only from a region of at least this many Gaussians")
       ->capture_default_str();
-  app->add_option("--min-instance", args->promptless.min_instance_gaussians,
+  app->add_option("--min-instance", args->eval.promptless.min_instance_gaussians,
                   "Promptless: smaller regions merge into a neighbour")
       ->capture_default_str();
   commands->push_back({app, [args] { return run_segment_eval(*args); }});

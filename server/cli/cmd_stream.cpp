@@ -100,24 +100,105 @@ nlohmann::json latency_json(const Latency& l) {
   return j;
 }
 
+// The wire frame of a dataset frame (`depth_raw`: its depth in sensor units, kept alive by the caller).
+client::FrameInput frame_input(const core::RgbdFrame& frame, double depth_scale, const cv::Mat& depth_raw) {
+  client::FrameInput input;
+  input.frame_id = static_cast<std::uint64_t>(std::max<std::int64_t>(0, frame.id));  // the dataset's number
+  input.timestamp = frame.timestamp;
+  input.intrinsics = {static_cast<float>(frame.camera.fx), static_cast<float>(frame.camera.fy),
+                      static_cast<float>(frame.camera.cx), static_cast<float>(frame.camera.cy),
+                      static_cast<std::uint32_t>(frame.camera.width),
+                      static_cast<std::uint32_t>(frame.camera.height)};
+  input.depth_scale = static_cast<float>(depth_scale);
+  input.rgb = frame.colour.ptr<std::uint8_t>();
+  input.depth = depth_raw.ptr<std::uint16_t>();
+  if (frame.T_world_camera_gt) {
+    input.has_gt_pose = true;
+    const Eigen::Quaterniond q(frame.T_world_camera_gt->rotation());
+    for (int k = 0; k < 3; ++k) input.gt_translation[k] = frame.T_world_camera_gt->translation()[k];
+    input.gt_rotation[0] = q.x();
+    input.gt_rotation[1] = q.y();
+    input.gt_rotation[2] = q.z();
+    input.gt_rotation[3] = q.w();
+  }
+  return input;
+}
+
+// What the poses that came back say, after the stream.
+struct StreamOutcome {
+  core::Trajectory trajectory;
+  std::size_t skipped = 0, errors = 0, missing = 0;
+  double elapsed = 0.0;  // seconds from the first frame to the last pose
+};
+
+// Prints the outcome, writes --out and --report; the exit code.
+int report_stream(const StreamArgs& args, const core::Dataset& dataset, const StreamOutcome& o,
+                  const Latency& latency, const std::vector<std::uint64_t>& tracked_ids) {
+  std::string why;
+  const std::size_t n = dataset.size();
+  std::printf("frames sent %zu: tracked %zu, skipped %zu%s, errors %zu, no answer %zu; %.1f s to "
+              "the last pose (%.1f tracked frames/s)\n",
+              n, o.trajectory.size(), o.skipped,
+              o.skipped > 0 ? " (live policy: a newer frame came while the tracker was busy)" : "",
+              o.errors, o.missing, o.elapsed,
+              static_cast<double>(o.trajectory.size()) / std::max(o.elapsed, 1e-9));
+  print_latency(latency);
+  if (!args.out.empty()) {
+    if (!core::write_tum_trajectory(args.out, o.trajectory, &why)) return fail(why);
+    std::printf("wrote %s\n", args.out.c_str());
+  }
+  nlohmann::json report = {{"frames_sent", n},          {"tracked", o.trajectory.size()},
+                           {"skipped", o.skipped},      {"errors", o.errors},
+                           {"no_answer", o.missing},    {"seconds_to_last_pose", o.elapsed},
+                           {"policy", args.policy},     {"rate", args.rate},
+                           {"latency", latency_json(latency)}};
+  report["tracked_frame_ids"] = tracked_ids;
+  if (dataset.has_ground_truth() && !o.trajectory.empty()) {
+    core::AteResult ate;
+    if (core::compute_ate(dataset.ground_truth(), o.trajectory, core::AteConfig{}, &ate, &why)) {
+      std::printf("ATE RMSE %.4f m (mean %.4f) over %zu tracked frames, SE(3)\n", ate.rmse, ate.mean,
+                  ate.pairs);
+      report["ate"] = {{"rmse_m", ate.rmse}, {"mean_m", ate.mean}, {"pairs", ate.pairs}};
+    }
+  }
+  if (!args.report.empty()) {
+    std::ofstream(args.report) << report.dump(2) << "\n";
+    std::printf("wrote %s\n", args.report.c_str());
+  }
+  // Skips are the live policy working; errors and frames with no outcome are failures.
+  if (o.errors > 0) return fail(std::to_string(o.errors) + " frame(s) got an error from the server");
+  if (o.missing > 0) return fail(std::to_string(o.missing) + " of " + std::to_string(n) + " frames got no answer");
+  return 0;
+}
+
+// --rate as frames per second, 0 for 'max'; -1 when it is neither.
+double parse_rate(const std::string& text) {
+  if (text == "max") return 0.0;
+  try {
+    const double rate = std::stod(text);
+    return rate > 0 ? rate : -1.0;
+  } catch (const std::exception&) {
+    return -1.0;
+  }
+}
+
+// --policy: live, queue, or server (the server's server.frame_policy); false for anything else.
+bool policy_of(const std::string& policy, client::SessionOptions* options) {
+  if (policy == "live") options->policy = client::FramePolicy::live;
+  else if (policy == "queue") options->policy = client::FramePolicy::queue;
+  else if (policy != "server") return false;
+  return true;
+}
+
 int run_stream(const StreamArgs& args) {
   core::DatasetOptions options;
   std::string why;
   auto dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
-  double rate = 0.0;
-  if (args.rate != "max") {
-    try {
-      rate = std::stod(args.rate);
-    } catch (const std::exception&) {
-      rate = -1;
-    }
-    if (!(rate > 0)) return fail("--rate must be a positive number of frames per second or 'max'");
-  }
+  const double rate = parse_rate(args.rate);
+  if (rate < 0) return fail("--rate must be a positive number of frames per second or 'max'");
   client::SessionOptions session_options;
-  if (args.policy == "live") session_options.policy = client::FramePolicy::live;
-  else if (args.policy == "queue") session_options.policy = client::FramePolicy::queue;
-  else if (args.policy != "server") return fail("--policy must be live, queue or server");
+  if (!policy_of(args.policy, &session_options)) return fail("--policy must be live, queue or server");
   // The instance that serves the map, or creates it (the map directory, docs/deployment.md).
   const std::string map = args.map.empty() ? args.session : args.map;
   client::ClientOptions copts;
@@ -141,10 +222,7 @@ int run_stream(const StreamArgs& args) {
     arrived[p.frame_id] = now;
   });
   client.on_result([&](const client::ResultUpdate& r) {
-    if (!r.ok) {
-      ++errors;
-      std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
-    }
+    if (!r.ok) ++errors, std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
   });
   if (!client.open_session(args.session, map, 10000, &why, session_options)) {
     return fail(why);
@@ -155,7 +233,6 @@ int run_stream(const StreamArgs& args) {
                rate > 0 ? (args.rate + " fps").c_str() : "full speed");
   Progress progress("stream", n);
   const auto start = std::chrono::steady_clock::now();
-  std::vector<double> timestamps(n);
   // Queue sessions hold a bounded number of frames (server.queue_capacity, 64 by default): a
   // client faster than tracking waits for answers rather than overrunning it (frames the
   // server drops are errors). Live sessions skip instead, so they need no window.
@@ -183,26 +260,7 @@ int run_stream(const StreamArgs& args) {
     if (!dataset->load(i, &frame, &why)) return fail(why);
     cv::Mat depth_raw;
     frame.depth.convertTo(depth_raw, CV_16UC1, dataset->depth_scale());
-    client::FrameInput input;
-    input.frame_id = static_cast<std::uint64_t>(std::max<std::int64_t>(0, frame.id));  // the dataset's number
-    input.timestamp = frame.timestamp;
-    timestamps[i] = frame.timestamp;
-    input.intrinsics = {static_cast<float>(frame.camera.fx), static_cast<float>(frame.camera.fy),
-                        static_cast<float>(frame.camera.cx), static_cast<float>(frame.camera.cy),
-                        static_cast<std::uint32_t>(frame.camera.width),
-                        static_cast<std::uint32_t>(frame.camera.height)};
-    input.depth_scale = static_cast<float>(dataset->depth_scale());
-    input.rgb = frame.colour.ptr<std::uint8_t>();
-    input.depth = depth_raw.ptr<std::uint16_t>();
-    if (frame.T_world_camera_gt) {
-      input.has_gt_pose = true;
-      const Eigen::Quaterniond q(frame.T_world_camera_gt->rotation());
-      for (int k = 0; k < 3; ++k) input.gt_translation[k] = frame.T_world_camera_gt->translation()[k];
-      input.gt_rotation[0] = q.x();
-      input.gt_rotation[1] = q.y();
-      input.gt_rotation[2] = q.z();
-      input.gt_rotation[3] = q.w();
-    }
+    const client::FrameInput input = frame_input(frame, dataset->depth_scale(), depth_raw);
     const TimePoint encode_start = std::chrono::steady_clock::now();
     {
       std::lock_guard<std::mutex> lock(mutex);
@@ -218,10 +276,8 @@ int run_stream(const StreamArgs& args) {
   progress.finish();
   // Wait for every frame's outcome: a pose, a skip, or an error saying why not.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(args.timeout_s);
-  for (;;) {
-    if (answered() >= n || std::chrono::steady_clock::now() > deadline) break;
+  while (answered() < n && std::chrono::steady_clock::now() <= deadline)
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
   auto last_pose = start;
   {
     std::lock_guard<std::mutex> lock(mutex);
@@ -231,7 +287,8 @@ int run_stream(const StreamArgs& args) {
   if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why)) {
     std::fprintf(stderr, "close: %s\n", why.c_str());
   }
-  core::Trajectory trajectory;
+  StreamOutcome outcome;
+  std::vector<std::uint64_t> tracked_ids;
   {
     std::lock_guard<std::mutex> lock(mutex);
     for (const auto& [id, p] : poses) {
@@ -240,55 +297,15 @@ int run_stream(const StreamArgs& args) {
       const Eigen::Quaterniond q(p.rotation[3], p.rotation[0], p.rotation[1], p.rotation[2]);
       sp.T_world_camera.linear() = q.normalized().toRotationMatrix();
       sp.T_world_camera.translation() = Eigen::Vector3d(p.translation[0], p.translation[1], p.translation[2]);
-      trajectory.push_back(sp);
+      outcome.trajectory.push_back(sp);
+      tracked_ids.push_back(id);
     }
+    outcome.skipped = skipped.size();
   }
-  const double elapsed = std::chrono::duration<double>(last_pose - start).count();
-  std::size_t skip_count = 0;
-  {
-    std::lock_guard<std::mutex> lock(mutex);
-    skip_count = skipped.size();
-  }
-  const std::size_t missing = n - std::min(n, trajectory.size() + skip_count + errors.load());
-  std::printf("frames sent %zu: tracked %zu, skipped %zu%s, errors %zu, no answer %zu; %.1f s to "
-              "the last pose (%.1f tracked frames/s)\n",
-              n, trajectory.size(), skip_count,
-              skip_count > 0 ? " (live policy: a newer frame came while the tracker was busy)" : "",
-              errors.load(), missing, elapsed,
-              static_cast<double>(trajectory.size()) / std::max(elapsed, 1e-9));
-  const Latency latency = latency_of(sent, arrived, poses);
-  print_latency(latency);
-  if (!args.out.empty()) {
-    if (!core::write_tum_trajectory(args.out, trajectory, &why)) return fail(why);
-    std::printf("wrote %s\n", args.out.c_str());
-  }
-  nlohmann::json report = {{"frames_sent", n},          {"tracked", trajectory.size()},
-                           {"skipped", skip_count},     {"errors", errors.load()},
-                           {"no_answer", missing},      {"seconds_to_last_pose", elapsed},
-                           {"policy", args.policy},     {"rate", args.rate},
-                           {"latency", latency_json(latency)}};
-  {
-    std::lock_guard<std::mutex> lock(mutex);
-    std::vector<std::uint64_t> ids;
-    for (const auto& [id, p] : poses) ids.push_back(id);
-    report["tracked_frame_ids"] = ids;
-  }
-  if (dataset->has_ground_truth() && !trajectory.empty()) {
-    core::AteResult ate;
-    if (core::compute_ate(dataset->ground_truth(), trajectory, core::AteConfig{}, &ate, &why)) {
-      std::printf("ATE RMSE %.4f m (mean %.4f) over %zu tracked frames, SE(3)\n", ate.rmse, ate.mean,
-                  ate.pairs);
-      report["ate"] = {{"rmse_m", ate.rmse}, {"mean_m", ate.mean}, {"pairs", ate.pairs}};
-    }
-  }
-  if (!args.report.empty()) {
-    std::ofstream(args.report) << report.dump(2) << "\n";
-    std::printf("wrote %s\n", args.report.c_str());
-  }
-  // Skips are the live policy working; errors and frames with no outcome are failures.
-  if (errors.load() > 0) return fail(std::to_string(errors.load()) + " frame(s) got an error from the server");
-  if (missing > 0) return fail(std::to_string(missing) + " of " + std::to_string(n) + " frames got no answer");
-  return 0;
+  outcome.elapsed = std::chrono::duration<double>(last_pose - start).count();
+  outcome.errors = errors.load();
+  outcome.missing = n - std::min(n, outcome.trajectory.size() + outcome.skipped + outcome.errors);
+  return report_stream(args, *dataset, outcome, latency_of(sent, arrived, poses), tracked_ids);
 }
 
 }  // namespace

@@ -216,7 +216,7 @@ void add_train_autoencoder_command(CLI::App& root, CommandList* commands) {
                   "Random pixels sampled from each image")
       ->check(CLI::Range(1, 1 << 24))
       ->capture_default_str();
-  app->add_option("--latent", args->latent, "Latent size D; must equal the mapper's feature_dim")
+  app->add_option("--latent", args->latent, "Latent size D (the weights file carries it; maps built with it have D channels)")
       ->check(CLI::Range(1, 1024))
       ->capture_default_str();
   // CLI11 2.1 reads "-1" into an unsigned option as 2^32 - 1; refuse it instead.

@@ -4,16 +4,28 @@
 
 #include <CLI/CLI.hpp>
 
+#include "fslam/server/config_fields.hpp"
+
 namespace fslam::cli {
 
 bool DatasetArgs::to_options(core::DatasetOptions* options, std::string* why) const {
   core::DatasetOptions result;
   result.kind = kind;
-  server::ServerConfig layered;
-  if (!(config != nullptr ? config : &own_config)->apply(&layered, why)) return false;
-  const std::string& intrinsics = this->intrinsics.empty() ? layered.dataset.intrinsics : this->intrinsics;
+  // dataset.* from the command's own table (fslam run / track: the run settings, else the server's).
+  const server::ConfigOptions& layers = config != nullptr ? *config : own_config;
+  server::DatasetSettings settings;
+  if (layers.kind == server::SettingsKind::run) {
+    server::RunConfig layered = server::run_defaults();
+    if (!layers.apply(&layered, why)) return false;
+    settings = layered.dataset;
+  } else {
+    server::ServerConfig layered;
+    if (!layers.apply(&layered, why)) return false;
+    settings = layered.dataset;
+  }
+  const std::string& intrinsics = this->intrinsics.empty() ? settings.intrinsics : this->intrinsics;
   const std::string& colour_camera =
-      this->colour_camera.empty() ? layered.dataset.colour_camera : this->colour_camera;
+      this->colour_camera.empty() ? settings.colour_camera : this->colour_camera;
   if (!frames.empty() && !core::FrameSelection::parse(frames, &result.frames, why)) {
     if (why) *why = "--frames: " + *why;
     return false;

@@ -107,21 +107,21 @@ const EnumNames<core::RobustKernel> kRobustKernels = {{core::RobustKernel::none,
 // ---- the table builder -----------------------------------------------------------------------
 
 // The members of one sub-struct, keyed "<prefix>.<name>". `access` is a generic lambda
-// (auto& config) -> auto& that reaches the sub-struct from a ServerConfig, const or not.
-template <class Access>
+// (auto& config) -> auto& that reaches the sub-struct from a Config, const or not.
+template <class Config, class Access>
 class Section {
  public:
-  Section(std::vector<ConfigField>* fields, std::string prefix, Access access)
+  Section(SettingsTable<Config>* fields, std::string prefix, Access access)
       : fields_(fields), prefix_(std::move(prefix)), access_(access) {}
 
   template <class S, class T>
   void add(const char* name, T S::*member) const {
     fields_->push_back(
         {key(name), Codec<T>::kTypeName,
-         [access = access_, member](ServerConfig* c, const std::string& text, std::string* why) {
+         [access = access_, member](Config* c, const std::string& text, std::string* why) {
            return Codec<T>::parse(text, &(access(*c).*member), why);
          },
-         [access = access_, member](const ServerConfig& c) {
+         [access = access_, member](const Config& c) {
            return Codec<T>::format(access(c).*member);
          }});
   }
@@ -131,39 +131,51 @@ class Section {
     const EnumCodec<E> codec{names};
     fields_->push_back(
         {key(name), codec.type_name(),
-         [access = access_, member, codec](ServerConfig* c, const std::string& text,
+         [access = access_, member, codec](Config* c, const std::string& text,
                                            std::string* why) {
            return codec.parse(text, &(access(*c).*member), why);
          },
-         [access = access_, member, codec](const ServerConfig& c) {
+         [access = access_, member, codec](const Config& c) {
            return codec.format(access(c).*member);
          }});
   }
 
  private:
   std::string key(const char* name) const { return prefix_.empty() ? name : prefix_ + "." + name; }
-  std::vector<ConfigField>* fields_;
+  SettingsTable<Config>* fields_;
   std::string prefix_;
   Access access_;
 };
 
-template <class Access>
-Section<Access> section(std::vector<ConfigField>* fields, std::string prefix, Access access) {
-  return Section<Access>(fields, std::move(prefix), access);
+template <class Config, class Access>
+Section<Config, Access> section(SettingsTable<Config>* fields, std::string prefix, Access access) {
+  return Section<Config, Access>(fields, std::move(prefix), access);
+}
+
+// `table`'s settings on the `Part` that `access` reaches inside an `Outer`, under the same keys.
+template <class Outer, class Part, class Access>
+void add_nested(SettingsTable<Outer>* fields, const SettingsTable<Part>& table, Access access) {
+  for (const Setting<Part>& s : table) {
+    fields->push_back({s.key, s.type_name,
+                       [access, set = s.set](Outer* c, const std::string& text, std::string* why) {
+                         return set(&access(*c), text, why);
+                       },
+                       [access, get = s.get](const Outer& c) { return get(access(c)); }});
+  }
 }
 
 // ---- core::PipelineConfig --------------------------------------------------------------------
 
-void add_pipeline_fields(std::vector<ConfigField>* f) {
+void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   using Pipeline = core::PipelineConfig;
-  const auto pipeline = section(f, "", [](auto& c) -> auto& { return c.pipeline; });
+  const auto pipeline = section(f, "", [](auto& c) -> auto& { return c; });
   pipeline.add("realtime", &Pipeline::realtime);
   pipeline.add("min_iterations_when_behind", &Pipeline::min_iterations_when_behind);
   pipeline.add("idle_iterations", &Pipeline::idle_iterations);
   pipeline.add("track_with_features", &Pipeline::track_with_features);
 
   using Tracker = core::TrackerConfig;
-  const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.pipeline.tracker; });
+  const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.tracker; });
   tracker.add("constant_velocity", &Tracker::constant_velocity);
   tracker.add("refresh_features", &Tracker::refresh_features);
   tracker.add("parallel", &Tracker::parallel);
@@ -171,7 +183,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   using Preprocess = core::PreprocessConfig;
   const auto pre = section(f, "tracker.preprocess",
-                           [](auto& c) -> auto& { return c.pipeline.tracker.preprocess; });
+                           [](auto& c) -> auto& { return c.tracker.preprocess; });
   pre.add("min_depth", &Preprocess::min_depth);
   pre.add("max_depth", &Preprocess::max_depth);
   pre.add("stride", &Preprocess::stride);
@@ -179,7 +191,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   using Covariance = core::CovarianceConfig;
   const auto cov = section(f, "tracker.preprocess.covariance",
-                           [](auto& c) -> auto& { return c.pipeline.tracker.preprocess.covariance; });
+                           [](auto& c) -> auto& { return c.tracker.preprocess.covariance; });
   cov.add("min_neighbours", &Covariance::min_neighbours);
   cov.add("knn", &Covariance::knn);
   cov.add("window_radius", &Covariance::window_radius);
@@ -188,7 +200,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   using DepthNoise = core::DepthNoiseModel;
   const auto noise = section(f, "tracker.preprocess.depth_noise",
-                             [](auto& c) -> auto& { return c.pipeline.tracker.preprocess.depth_noise; });
+                             [](auto& c) -> auto& { return c.tracker.preprocess.depth_noise; });
   noise.add("enabled", &DepthNoise::enabled);
   noise.add("a", &DepthNoise::a);
   noise.add("b", &DepthNoise::b);
@@ -197,7 +209,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   using LocalMap = core::LocalMapConfig;
   const auto local = section(f, "tracker.local_map",
-                             [](auto& c) -> auto& { return c.pipeline.tracker.local_map; });
+                             [](auto& c) -> auto& { return c.tracker.local_map; });
   local.add("voxel_size", &LocalMap::voxel_size);
   local.add("min_point_distance", &LocalMap::min_point_distance);
   local.add("fuse", &LocalMap::fuse);
@@ -206,13 +218,13 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   using MapTarget = core::MapTargetConfig;
   const auto map_target = section(f, "tracker.map_target",
-                                  [](auto& c) -> auto& { return c.pipeline.tracker.map_target; });
+                                  [](auto& c) -> auto& { return c.tracker.map_target; });
   map_target.add("min_opacity", &MapTarget::min_opacity);
   map_target.add("min_point_distance", &MapTarget::min_point_distance);
   map_target.add("unit_discs", &MapTarget::unit_discs);
 
   using Gicp = core::GicpConfig;
-  const auto gicp = section(f, "tracker.gicp", [](auto& c) -> auto& { return c.pipeline.tracker.gicp; });
+  const auto gicp = section(f, "tracker.gicp", [](auto& c) -> auto& { return c.tracker.gicp; });
   gicp.add("max_iterations", &Gicp::max_iterations);
   gicp.add("max_correspondence_distance", &Gicp::max_correspondence_distance);
   gicp.add("kernel", &Gicp::kernel, kRobustKernels);
@@ -227,22 +239,23 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   using Keyframe = core::KeyframeConfig;
   const auto keyframe = section(f, "tracker.keyframe",
-                                [](auto& c) -> auto& { return c.pipeline.tracker.keyframe; });
+                                [](auto& c) -> auto& { return c.tracker.keyframe; });
   keyframe.add("translation", &Keyframe::translation);
   keyframe.add("rotation_deg", &Keyframe::rotation_deg);
   keyframe.add("rms_residual", &Keyframe::rms_residual);
 
   using Loss = core::TrackingLossConfig;
-  const auto loss = section(f, "tracker.loss", [](auto& c) -> auto& { return c.pipeline.tracker.loss; });
+  const auto loss = section(f, "tracker.loss", [](auto& c) -> auto& { return c.tracker.loss; });
   loss.add("min_inlier_ratio", &Loss::min_inlier_ratio);
   loss.add("min_inliers", &Loss::min_inliers);
   loss.add("max_condition_number", &Loss::max_condition_number);
   loss.add("recovery_keyframes", &Loss::recovery_keyframes);
 
   using Mapper = core::MapperConfig;
-  const auto mapper = section(f, "mapper", [](auto& c) -> auto& { return c.pipeline.mapper; });
+  const auto mapper = section(f, "mapper", [](auto& c) -> auto& { return c.mapper; });
   mapper.add("sh_degree", &Mapper::sh_degree);
-  mapper.add("feature_dim", &Mapper::feature_dim);
+  // feature_dim is not a setting: the autoencoder's weights file carries the latent width and
+  // SlamPipeline takes it from there (0 without features).
   mapper.add("training_scale", &Mapper::training_scale);
   mapper.add("refine_scale", &Mapper::refine_scale);
   mapper.add("insert_stride", &Mapper::insert_stride);
@@ -270,13 +283,13 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
 
   // RenderSettings::background is a colour triple, not a scalar: not in the table.
   using Render = core::RenderSettings;
-  const auto render = section(f, "mapper.render", [](auto& c) -> auto& { return c.pipeline.mapper.render; });
+  const auto render = section(f, "mapper.render", [](auto& c) -> auto& { return c.mapper.render; });
   render.add("near_plane", &Render::near_plane);
   render.add("features", &Render::features);
 
   using Rates = core::GaussianLearningRates;
   const auto lr = section(f, "mapper.learning_rates",
-                          [](auto& c) -> auto& { return c.pipeline.mapper.learning_rates; });
+                          [](auto& c) -> auto& { return c.mapper.learning_rates; });
   lr.add("means", &Rates::means);
   lr.add("sh_dc", &Rates::sh_dc);
   lr.add("sh_rest", &Rates::sh_rest);
@@ -286,7 +299,7 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   lr.add("features", &Rates::features);
 
   using Weights = core::MappingLossWeights;
-  const auto weights = section(f, "mapper.loss", [](auto& c) -> auto& { return c.pipeline.mapper.loss; });
+  const auto weights = section(f, "mapper.loss", [](auto& c) -> auto& { return c.mapper.loss; });
   weights.add("rgb_l1", &Weights::rgb_l1);
   weights.add("rgb_ssim", &Weights::rgb_ssim);
   weights.add("feature_l1", &Weights::feature_l1);
@@ -300,36 +313,45 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   weights.add("thin", &Weights::thin);
 
   using Features = core::LatentFeaturesConfig;
-  const auto features = section(f, "features", [](auto& c) -> auto& { return c.pipeline.features; });
+  const auto features = section(f, "features", [](auto& c) -> auto& { return c.features; });
   features.add("autoencoder_path", &Features::autoencoder_path);
   features.add("grid_step", &Features::grid_step);
   using Encoder = core::FeatureEncoderConfig;
-  const auto encoder = section(f, "features.encoder", [](auto& c) -> auto& { return c.pipeline.features.encoder; });
+  const auto encoder = section(f, "features.encoder", [](auto& c) -> auto& { return c.features.encoder; });
   encoder.add("backend", &Encoder::backend, kFeatureBackends);
   using Builtin = core::BuiltinFeatureConfig;
   const auto builtin = section(f, "features.encoder.builtin",
-                               [](auto& c) -> auto& { return c.pipeline.features.encoder.builtin; });
+                               [](auto& c) -> auto& { return c.features.encoder.builtin; });
   builtin.add("input_width", &Builtin::input_width);
   builtin.add("input_height", &Builtin::input_height);
   using Onnx = core::OnnxFeatureConfig;
   const auto onnx = section(f, "features.encoder.onnx",
-                            [](auto& c) -> auto& { return c.pipeline.features.encoder.onnx; });
+                            [](auto& c) -> auto& { return c.features.encoder.onnx; });
   onnx.add("model_path", &Onnx::model_path);
   onnx.add("input_width", &Onnx::input_width);
   onnx.add("input_height", &Onnx::input_height);
 
   using Pcc = core::PccConfig;
-  const auto pcc = section(f, "mapper.loss.pcc", [](auto& c) -> auto& { return c.pipeline.mapper.loss.pcc; });
+  const auto pcc = section(f, "mapper.loss.pcc", [](auto& c) -> auto& { return c.mapper.loss.pcc; });
   pcc.add("block", &Pcc::block);
   pcc.add("min_valid_pixels", &Pcc::min_valid_pixels);
   pcc.add("min_std", &Pcc::min_std);
+}
+
+// ---- dataset.*: ServerConfig's and RunConfig's ---------------------------------------------
+
+template <class Config>
+void add_dataset_fields(SettingsTable<Config>* f) {
+  const auto dataset = section(f, "dataset", [](auto& c) -> auto& { return c.dataset; });
+  dataset.add("intrinsics", &DatasetSettings::intrinsics);
+  dataset.add("colour_camera", &DatasetSettings::colour_camera);
 }
 
 // ---- ServerConfig's own settings (server.*) --------------------------------------------------
 // Kept apart from the pipeline's: new server fields are added here. `domain` is deliberately not
 // a setting: it picks the DDS network, a deployment choice made on the command line (--domain).
 
-void add_server_fields(std::vector<ConfigField>* f) {
+void add_server_fields(SettingsTable<ServerConfig>* f) {
   const auto server = section(f, "server", [](auto& c) -> auto& { return c; });
   server.add("prefix", &ServerConfig::prefix);
   server.add("frame_policy", &ServerConfig::frame_policy);
@@ -352,9 +374,7 @@ void add_server_fields(std::vector<ConfigField>* f) {
   server.add("grounding_model", &ServerConfig::grounding_model);
   server.add("grounding_input_size", &ServerConfig::grounding_input_size);
   server.add("grounding_box_threshold", &ServerConfig::grounding_box_threshold);
-  const auto dataset = section(f, "dataset", [](auto& c) -> auto& { return c.dataset; });
-  dataset.add("intrinsics", &DatasetSettings::intrinsics);
-  dataset.add("colour_camera", &DatasetSettings::colour_camera);
+  add_dataset_fields(f);
 }
 
 // ---- lookup and messages ---------------------------------------------------------------------
@@ -376,10 +396,11 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
 
 // The key a typo or an old short name most likely meant: one that ends in `.key` (the names
 // `fslam run --set` took before the table), else the closest by edit distance if close enough.
-std::string nearest_key(const std::string& key) {
+template <class Config>
+std::string nearest_key(const SettingsTable<Config>& table, const std::string& key) {
   std::string best;
   std::size_t best_distance = key.size() / 3 + 2;
-  for (const ConfigField& field : config_fields()) {
+  for (const Setting<Config>& field : table) {
     const std::string& k = field.key;
     if (k.size() > key.size() && k.compare(k.size() - key.size(), key.size(), key) == 0 &&
         k[k.size() - key.size() - 1] == '.')
@@ -390,32 +411,36 @@ std::string nearest_key(const std::string& key) {
   return best;
 }
 
-bool is_group(const std::string& key) {
+template <class Config>
+bool is_group(const SettingsTable<Config>& table, const std::string& key) {
   const std::string prefix = key + ".";
-  for (const ConfigField& field : config_fields())
+  for (const Setting<Config>& field : table)
     if (field.key.compare(0, prefix.size(), prefix) == 0) return true;
   return false;
 }
 
-std::string unknown_setting(const std::string& key) {
-  if (is_group(key)) return "'" + key + "' is a group of settings, not one value";
-  const std::string nearest = nearest_key(key);
+template <class Config>
+std::string unknown_setting(const SettingsTable<Config>& table, const std::string& key) {
+  if (is_group(table, key)) return "'" + key + "' is a group of settings, not one value";
+  const std::string nearest = nearest_key(table, key);
   return "unknown setting '" + key + "'" + (nearest.empty() ? "" : " (did you mean " + nearest + "?)");
 }
 
+template <class Config>
 bool load_map(const YAML::Node& map, const std::string& prefix, const std::string& path,
-              ServerConfig* config, std::string* why) {
+              Config* config, std::string* why) {
+  const SettingsTable<Config>& table = settings_of(config);
   for (const auto& item : map) {
     const std::string key = prefix + item.first.Scalar();
     const YAML::Node& value = item.second;
     const std::string where = path + ":" + std::to_string(item.first.Mark().line + 1) + ": ";
-    const bool group = is_group(key);
+    const bool group = is_group(table, key);
     if (value.IsMap() && group) {
       if (!load_map(value, key + ".", path, config, why)) return false;
     } else if (value.IsNull() && group) {
       // A group whose entries are all commented out sets nothing.
-    } else if (!find_config_field(key)) {
-      return fail(why, where + unknown_setting(key));
+    } else if (!find_setting(table, key)) {
+      return fail(why, where + unknown_setting(table, key));
     } else if (value.IsNull()) {
       return fail(why, where + "'" + key + "' has no value");
     } else if (!value.IsScalar()) {
@@ -430,38 +455,62 @@ bool load_map(const YAML::Node& map, const std::string& prefix, const std::strin
 
 }  // namespace
 
+const SettingsTable<core::PipelineConfig>& pipeline_settings() {
+  static const SettingsTable<core::PipelineConfig> fields = [] {
+    SettingsTable<core::PipelineConfig> f;
+    add_pipeline_fields(&f);
+    return f;
+  }();
+  return fields;
+}
+
+const SettingsTable<RunConfig>& run_settings() {
+  static const SettingsTable<RunConfig> fields = [] {
+    SettingsTable<RunConfig> f;
+    add_nested(&f, pipeline_settings(), [](auto& c) -> auto& { return c.pipeline; });
+    add_dataset_fields(&f);
+    return f;
+  }();
+  return fields;
+}
+
 const std::vector<ConfigField>& config_fields() {
   static const std::vector<ConfigField> fields = [] {
     std::vector<ConfigField> f;
-    add_pipeline_fields(&f);
+    add_nested(&f, pipeline_settings(), [](auto& c) -> auto& { return c.pipeline; });
     add_server_fields(&f);
     return f;
   }();
   return fields;
 }
 
-const ConfigField* find_config_field(const std::string& key) {
-  for (const ConfigField& field : config_fields())
+template <class Config>
+const Setting<Config>* find_setting(const SettingsTable<Config>& table, const std::string& key) {
+  for (const Setting<Config>& field : table)
     if (field.key == key) return &field;
   return nullptr;
 }
 
-bool set_config_value(ServerConfig* config, const std::string& key, const std::string& value,
+template <class Config>
+bool set_config_value(Config* config, const std::string& key, const std::string& value,
                       std::string* why) {
-  const ConfigField* field = find_config_field(key);
-  if (!field) return fail(why, unknown_setting(key));
+  const SettingsTable<Config>& table = settings_of(config);
+  const Setting<Config>* field = find_setting(table, key);
+  if (!field) return fail(why, unknown_setting(table, key));
   std::string reason;
   if (!field->set(config, value, &reason)) return fail(why, key + ": " + reason);
   return true;
 }
 
-bool set_config_assignment(ServerConfig* config, const std::string& assignment, std::string* why) {
+template <class Config>
+bool set_config_assignment(Config* config, const std::string& assignment, std::string* why) {
   const auto eq = assignment.find('=');
   if (eq == std::string::npos) return fail(why, "expected key=value, got '" + assignment + "'");
   return set_config_value(config, assignment.substr(0, eq), assignment.substr(eq + 1), why);
 }
 
-bool load_config_file(const std::string& path, ServerConfig* config, std::string* why) {
+template <class Config>
+bool load_config_file(const std::string& path, Config* config, std::string* why) {
   YAML::Node root;
   try {
     root = YAML::LoadFile(path);
@@ -475,9 +524,10 @@ bool load_config_file(const std::string& path, ServerConfig* config, std::string
   return load_map(root, "", path, config, why);
 }
 
-std::string effective_config_yaml(const ServerConfig& config) {
+template <class Config>
+std::string effective_config_yaml(const Config& config) {
   YAML::Node root(YAML::NodeType::Map);
-  for (const ConfigField& field : config_fields()) {
+  for (const Setting<Config>& field : settings_of(&config)) {
     YAML::Node node = root;
     std::size_t begin = 0;
     for (std::size_t dot; (dot = field.key.find('.', begin)) != std::string::npos; begin = dot + 1)
@@ -488,5 +538,17 @@ std::string effective_config_yaml(const ServerConfig& config) {
   out << root;
   return std::string(out.c_str()) + "\n";
 }
+
+// The three tables' instantiations.
+#define FSLAM_SETTINGS_FUNCTIONS(Config)                                                        \
+  template const Setting<Config>* find_setting(const SettingsTable<Config>&, const std::string&); \
+  template bool set_config_value(Config*, const std::string&, const std::string&, std::string*); \
+  template bool set_config_assignment(Config*, const std::string&, std::string*);               \
+  template bool load_config_file(const std::string&, Config*, std::string*);                    \
+  template std::string effective_config_yaml(const Config&);
+FSLAM_SETTINGS_FUNCTIONS(core::PipelineConfig)
+FSLAM_SETTINGS_FUNCTIONS(RunConfig)
+FSLAM_SETTINGS_FUNCTIONS(ServerConfig)
+#undef FSLAM_SETTINGS_FUNCTIONS
 
 }  // namespace fslam::server

@@ -16,12 +16,23 @@ bool PipelineConfig::is_valid(std::string* why) const {
   return features.is_valid(why);
 }
 
+namespace {
+
+// The Gaussians' latent width is the autoencoder's (its weights file carries it), 0 without
+// features: never a second copy to keep equal by hand.
+PipelineConfig with_feature_width(PipelineConfig config, const LatentFeatures* features) {
+  config.mapper.feature_dim = features != nullptr ? features->dim() : 0;
+  return config;
+}
+
+}  // namespace
+
 SlamPipeline::SlamPipeline(const PipelineConfig& config,
                            std::shared_ptr<const Rasterizer> rasterizer,
                            std::unique_ptr<LatentFeatures> features)
-    : config_(config),
-      tracker_(config.tracker),
-      mapper_(config.mapper, std::move(rasterizer)),
+    : config_(with_feature_width(config, features.get())),
+      tracker_(config_.tracker),
+      mapper_(config_.mapper, std::move(rasterizer)),
       features_(std::move(features)),
       pyramids_(std::make_shared<PyramidPool>()) {}
 
@@ -114,7 +125,7 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
   }
   result->timings.features_ms = prepared.features_ms;
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
-  if (result->keyframe) {
+  if (result->keyframe && config_.mapping) {
     QueuedKeyframe queued;
     MapperKeyframe& kf = queued.keyframe;
     kf.frame_id = frame.id;
@@ -178,11 +189,6 @@ std::size_t SlamPipeline::queued_keyframes() const {
 
 bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
                                std::string* why) {
-  if (features_ && features_->dim() != config_.mapper.feature_dim) {
-    return fail(why, "features: the autoencoder's latent has " + std::to_string(features_->dim()) +
-                         " channels but mapper.feature_dim is " +
-                         std::to_string(config_.mapper.feature_dim));
-  }
   for (;;) {
     QueuedKeyframe queued;
     std::size_t waiting = 0;

@@ -35,6 +35,8 @@ struct PipelineConfig {
   // each frame's latent on the tracker's lattice (the encoder and phi on every frame, on the
   // tracking thread). Off: geometry and opacity only, and the encoder runs on keyframes alone.
   bool track_with_features = true;
+  // Off: tracking alone (`fslam track`): keyframes are not handed to a mapper. Not a setting.
+  bool mapping = true;
   bool is_valid(std::string* why = nullptr) const;
 };
 
@@ -60,8 +62,8 @@ struct PreparedFrame {
 
 class SlamPipeline {
  public:
-  // features (optional): the keyframes' latent targets for the feature loss; its dim() must be
-  // the mapper's feature_dim (run_mapping fails and says so otherwise).
+  // features (optional): the keyframes' latent targets for the feature loss; the Gaussians carry
+  // its dim() channels (config.mapper.feature_dim is ignored: 0 without features).
   SlamPipeline(const PipelineConfig& config, std::shared_ptr<const Rasterizer> rasterizer,
                std::unique_ptr<LatentFeatures> features = nullptr);
   ~SlamPipeline();
@@ -98,6 +100,8 @@ class SlamPipeline {
     return mapper_.refine(steps, why, progress);
   }
 
+  // The pipeline's config, mapper.feature_dim as the features give it.
+  const PipelineConfig& config() const { return config_; }
   Tracker& tracker() { return tracker_; }
   const Mapper& mapper() const { return mapper_; }
   Mapper& mapper() { return mapper_; }
