@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Overload (issue 23): SESSIONS raw publishers push RAW 640x480 frames into their own maps as fast
 # as DDS takes them, a client asks for 640x480 renders back to back, and a probe renders a small
-# view every 0.5 s (tests/common/overload_main.cpp). The server must stay responsive: the probe's
+# view every 0.5 s (tests/common/load_main.cpp). The server must stay responsive: the probe's
 # renders and `fslam status` answered within seconds during the load, every frame sent tracked
 # or reported (a pose, a skip or an error result), a new session served afterwards, resident
 # memory under BUDGET_MB, and SIGTERM honoured within 15 s.
@@ -26,15 +26,15 @@ check "the server starts" wait_for_line "$WORK/server.log" "serving on"
 SAMPLER=$!
 PIDS+=("$SAMPLER")
 
-timeout $((LOAD_S + 150)) "$BIN/fslam_overload" "$PREFIX" "$WORK/seq" "$LOAD_S" "$SESSIONS" \
-  >"$WORK/report.json" 2>"$WORK/overload.err" &
+timeout $((LOAD_S + 150)) "$BIN/fslam_load" "$PREFIX" "$WORK/seq" "$LOAD_S" "$SESSIONS" \
+  --rate 0 --encoding raw --queriers 1 --query-rate 0 >"$WORK/report.json" 2>"$WORK/overload.err" &
 LOADER=$!
 PIDS+=("$LOADER")
 sleep $((LOAD_S / 2))
 t0=$(date +%s%N)
 "$BIN/fslam" status --prefix "$PREFIX" --seconds 3 >"$WORK/status.txt" 2>&1
 status_ms=$(( ($(date +%s%N) - t0) / 1000000 ))
-check "fslam status answered during the load (${status_ms} ms)" grep -q "overload0" "$WORK/status.txt"
+check "fslam status answered during the load (${status_ms} ms)" grep -q "load0" "$WORK/status.txt"
 wait "$LOADER"
 check "the load tool finished" test $? -eq 0
 cat "$WORK/overload.err" | head -5
@@ -50,7 +50,7 @@ for i, s in enumerate(sessions):
           f"skipped {s['skipped']}, errors {s['errors']}")
     ok = ok and s["sent"] > 0 and answered == s["sent"] and s["tracked"] > 0
 probe = sorted(r["probe_ms"])
-print(f"  hammer renders: {r['hammer']['ok']} answered, {r['hammer']['failed']} failed")
+print(f"  hammer renders: {r['queries']['ok']} answered, {r['queries']['failed']} failed")
 if probe:
     print(f"  probe renders: {len(probe)}, p50 {probe[len(probe) // 2]:.0f} ms, max {probe[-1]:.0f} ms, "
           f"failures {r['probe_failures']}")
