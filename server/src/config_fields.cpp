@@ -238,7 +238,11 @@ void add_pipeline_fields(std::vector<ConfigField>* f) {
   loss.add("min_inliers", &Loss::min_inliers);
   loss.add("max_condition_number", &Loss::max_condition_number);
   loss.add("recovery_keyframes", &Loss::recovery_keyframes);
+}
 
+// The mapper's settings and the latent features' (mapper.*, features.*), in the table after the
+// pipeline's and the tracker's.
+void add_mapper_fields(std::vector<ConfigField>* f) {
   using Mapper = core::MapperConfig;
   const auto mapper = section(f, "mapper", [](auto& c) -> auto& { return c.pipeline.mapper; });
   mapper.add("sh_degree", &Mapper::sh_degree);
@@ -434,6 +438,7 @@ const std::vector<ConfigField>& config_fields() {
   static const std::vector<ConfigField> fields = [] {
     std::vector<ConfigField> f;
     add_pipeline_fields(&f);
+    add_mapper_fields(&f);
     add_server_fields(&f);
     return f;
   }();
