@@ -359,6 +359,9 @@ void add_server_fields(std::vector<ConfigField>* f) {
   const auto dataset = section(f, "dataset", [](auto& c) -> auto& { return c.dataset; });
   dataset.add("intrinsics", &DatasetSettings::intrinsics);
   dataset.add("colour_camera", &DatasetSettings::colour_camera);
+  // Last, so that the printed configuration keeps the order of the keys before it.
+  const auto compute = section(f, "compute", [](auto& c) -> auto& { return c.compute; });
+  compute.add("backend", &ComputeSettings::backend);
 }
 
 // ---- lookup and messages ---------------------------------------------------------------------

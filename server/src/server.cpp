@@ -52,6 +52,9 @@ bool ServerConfig::is_valid(std::string* why) const {
       std::string::npos) {
     return core::fail(why, "server: instance '" + instance + "' may hold only letters, digits, '-' and '_'");
   }
+  if (compute.backend != "auto" && compute.backend != "cpu" && compute.backend != "cuda") {
+    return core::fail(why, "compute.backend must be auto, cpu or cuda, not '" + compute.backend + "'");
+  }
   if (!grounding().is_valid(why)) return false;
   return pipeline.is_valid(why);
 }
@@ -80,7 +83,7 @@ bool Server::configure(const ServerConfig& config, std::string* why) {
 bool Server::activate(std::string* why) {
   if (!configured_) return core::fail(why, "server: activate before configure");
   std::string notice;
-  query_rasterizer_ = make_rasterizer("auto", RasterUse::kRender, &notice, why);
+  query_rasterizer_ = make_rasterizer(config_.compute.backend, RasterUse::kRender, &notice, why);
   if (!query_rasterizer_) return false;
   grounding_.reset();
   if (!config_.grounding_model.empty()) {

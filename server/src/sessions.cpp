@@ -139,7 +139,7 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
 std::shared_ptr<core::SlamPipeline> Sessions::make_pipeline(std::string* why) const {
   std::string notice;
   std::shared_ptr<const core::Rasterizer> rasterizer =
-      make_rasterizer("auto", RasterUse::kMapping, &notice, why);
+      make_rasterizer(config_.compute.backend, RasterUse::kMapping, &notice, why);
   if (!rasterizer) return nullptr;
   std::unique_ptr<core::LatentFeatures> features;
   if (config_.pipeline.features.enabled()) {

@@ -50,6 +50,13 @@ struct DatasetSettings {
   std::string colour_camera;  // fx,fy,cx,cy,tx,ty,tz; empty: colour registered to depth
 };
 
+// What runs the server's rasterisers (compute.backend): "auto" takes a usable GPU for rendering
+// queries and keeps mapping on the CPU; "cpu"; or "cuda", which needs a CUDA build and a usable GPU
+// (else activation fails saying why). backend_factory.hpp says what each choice makes.
+struct ComputeSettings {
+  std::string backend = "auto";  // auto | cpu | cuda
+};
+
 struct ServerConfig {
   std::string prefix = "fslam";                 // topic prefix of this deployment
   // Scale-out (docs/deployment.md): the instance's name in the deployment's map directory
@@ -90,6 +97,7 @@ struct ServerConfig {
   // makes closing a session wait for it (core's default suits offline `fslam run`).
   core::PipelineConfig pipeline = realtime_pipeline();
   DatasetSettings dataset;
+  ComputeSettings compute;
   bool is_valid(std::string* why = nullptr) const;
   // The prefix of the instance's own topics (frames, poses, session, requests, results, status):
   // <prefix>/<instance> with '-' as '_' (Cyclone refuses '-' in topic names; pod names have it).
