@@ -250,7 +250,11 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   loss.add("min_inliers", &Loss::min_inliers);
   loss.add("max_condition_number", &Loss::max_condition_number);
   loss.add("recovery_keyframes", &Loss::recovery_keyframes);
+}
 
+// The mapper's settings and the latent features' (mapper.*, features.*), in the table after the
+// pipeline's and the tracker's.
+void add_mapper_fields(std::vector<ConfigField>* f) {
   using Mapper = core::MapperConfig;
   const auto mapper = section(f, "mapper", [](auto& c) -> auto& { return c.mapper; });
   mapper.add("sh_degree", &Mapper::sh_degree);
@@ -375,6 +379,9 @@ void add_server_fields(SettingsTable<ServerConfig>* f) {
   server.add("grounding_input_size", &ServerConfig::grounding_input_size);
   server.add("grounding_box_threshold", &ServerConfig::grounding_box_threshold);
   add_dataset_fields(f);
+  // Last, so that the printed configuration keeps the order of the keys before it.
+  const auto compute = section(f, "compute", [](auto& c) -> auto& { return c.compute; });
+  compute.add("backend", &ComputeSettings::backend);
 }
 
 // ---- lookup and messages ---------------------------------------------------------------------

@@ -6,8 +6,6 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "fslam/proto/types.h"
-
 #include "fslam/core/mapping/image_losses.hpp"
 
 namespace fslam::server {
@@ -58,46 +56,6 @@ cv::Mat opacity_to_rgb8(const core::PlanarImage& alpha) {
   cv::Mat out;
   cv::cvtColor(grey, out, cv::COLOR_GRAY2RGB);
   return out;
-}
-
-}  // namespace fslam::server
-
-namespace fslam::server {
-
-std::vector<ChannelImage> render_channels(const core::RenderResult& rendered,
-                                          const core::PinholeCamera& camera,
-                                          std::uint32_t channels, float depth_scale) {
-  std::vector<ChannelImage> out;
-  if (channels & fslam_proto_CHANNEL_COLOUR) {
-    out.push_back({fslam_proto_CHANNEL_COLOUR, colour_to_rgb8(rendered.colour)});
-  }
-  if (channels & fslam_proto_CHANNEL_DEPTH) {
-    const core::PlanarImage& d = rendered.depth;
-    cv::Mat depth(d.height, d.width, CV_16UC1, cv::Scalar(0));
-    for (int v = 0; v < d.height; ++v)
-      for (int u = 0; u < d.width; ++u) {
-        const float alpha = rendered.alpha.at(0, v, u);
-        if (alpha < 0.5f) continue;
-        const double raw = std::round(d.at(0, v, u) / alpha * depth_scale);
-        if (raw > 0 && raw < 65535) depth.at<std::uint16_t>(v, u) = static_cast<std::uint16_t>(raw);
-      }
-    out.push_back({fslam_proto_CHANNEL_DEPTH, depth});
-  }
-  if (channels & fslam_proto_CHANNEL_NORMALS) {
-    out.push_back({fslam_proto_CHANNEL_NORMALS, normals_to_rgb8(rendered.median_depth, camera.intrinsics())});
-  }
-  if (channels & fslam_proto_CHANNEL_OPACITY) {
-    cv::Mat grey;
-    plane_to_mat(rendered.alpha, 0).convertTo(grey, CV_8U, 255.0);
-    out.push_back({fslam_proto_CHANNEL_OPACITY, grey});
-  }
-  return out;
-}
-
-bool encode_png(const cv::Mat& image, std::vector<std::uint8_t>* bytes) {
-  cv::Mat file_order = image;
-  if (image.type() == CV_8UC3) cv::cvtColor(image, file_order, cv::COLOR_RGB2BGR);
-  return cv::imencode(".png", file_order, *bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
 }
 
 }  // namespace fslam::server

@@ -21,6 +21,7 @@
 #include "cli_runner.hpp"
 #include "fslam/client/client.hpp"
 #include "fslam/core/dataset/dataset.hpp"
+#include "fslam/server/backend_factory.hpp"
 
 namespace fslam {
 namespace {
@@ -469,6 +470,31 @@ TEST(ServiceLimits, SessionsMapsPromptsAndNamesAreBounded) {
   EXPECT_FALSE(c.segment(q, &seg, 20000, &why));
   EXPECT_NE(why.find("server.max_prompts"), std::string::npos) << why;
   EXPECT_EQ(kill(server.pid(), 0), 0);
+}
+
+// compute.backend reaches the server's rasterisers: a name outside auto|cpu|cuda is refused
+// before anything starts, and cuda where this build or machine has no usable GPU stops the start
+// with the factory's reason (where one is usable the server would serve: that half is skipped).
+TEST(ServiceConfig, ComputeBackendChoosesTheRasterisersAtStart) {
+  test::use_loopback_dds();
+  const std::string prefix = "cb" + std::to_string(getpid());
+  std::string out, err;
+  EXPECT_EQ(run_command("timeout 60 " + fslam_bin() + " serve --prefix " + prefix +
+                            " --set compute.backend=gpu",
+                        &out, &err),
+            1)
+      << out << err;
+  EXPECT_NE(err.find("compute.backend must be auto, cpu or cuda, not 'gpu'"), std::string::npos) << err;
+  std::string notice, why;
+  if (server::make_rasterizer("cuda", server::RasterUse::kRender, &notice, &why)) {
+    GTEST_SKIP() << "a GPU is usable here: compute.backend=cuda would serve";
+  }
+  EXPECT_EQ(run_command("timeout 60 " + fslam_bin() + " serve --prefix " + prefix +
+                            " --set compute.backend=cuda",
+                        &out, &err),
+            1)
+      << out << err;
+  EXPECT_NE(err.find("fslam-server: error: " + why), std::string::npos) << why << "\n" << err;
 }
 
 // A saved map is served again after a server restart, and renders exactly as before.

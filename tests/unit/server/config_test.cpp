@@ -134,6 +134,23 @@ TEST(ConfigFields, BadValuesNameTheKey) {
   EXPECT_EQ(all_values(config), all_values(ServerConfig{}));
 }
 
+// compute.backend picks the server's rasterisers: auto by default, a name outside auto|cpu|cuda
+// is refused by validation, naming the key. It is the table's last key, so that the printed
+// configuration keeps the order of the keys before it.
+TEST(ConfigFields, ComputeBackendIsAutoCpuOrCuda) {
+  ServerConfig config;
+  EXPECT_EQ(find_config_field("compute.backend")->get(config), "auto");
+  EXPECT_EQ(config_fields().back().key, "compute.backend");
+  std::string why;
+  for (const char* backend : {"auto", "cpu", "cuda"}) {
+    ASSERT_TRUE(set_config_value(&config, "compute.backend", backend, &why)) << why;
+    EXPECT_TRUE(config.is_valid(&why)) << backend << ": " << why;
+  }
+  ASSERT_TRUE(set_config_value(&config, "compute.backend", "gpu", &why)) << why;
+  EXPECT_FALSE(config.is_valid(&why));
+  EXPECT_EQ(why, "compute.backend must be auto, cpu or cuda, not 'gpu'");
+}
+
 TEST(ConfigFile, NestedMapsSetDottedKeys) {
   const std::string path = write_file("nested.yaml", R"(# a sparse override
 realtime: true

@@ -10,7 +10,7 @@
 
 #include "fslam/proto/types.h"
 #include "fslam/server/map_files.hpp"
-#include "fslam/server/render_images.hpp"
+#include "fslam/server/wire.hpp"
 #include "test_support.hpp"
 
 namespace fslam::server {

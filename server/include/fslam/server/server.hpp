@@ -3,9 +3,10 @@
 // (docs/protocol.md). Each session runs tracking and mapping on their own threads. Its frames
 // follow its frame policy: live (the default) tracks the newest frame and skips older waiting
 // ones, reporting each skip on the pose stream; queue tracks every frame from a bounded queue
-// whose overflow drops the newest with an error result. Nothing accepted is lost silently. Render, segment, save and load requests run on query threads
-// against the newest map version, so any number of clients can query any map while it is being
-// built.
+// whose overflow drops the newest with an error result. Nothing accepted is lost silently.
+// Render, segment, save and load requests run on query threads against the newest map version,
+// so any number of clients can query any map while it is being built. The parts live in
+// server/src: sessions, the map registry, queries, and the wire conversions (wire.hpp).
 #pragma once
 
 #include <atomic>
@@ -23,13 +24,17 @@
 #include "fslam/client/dds.hpp"
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "fslam/proto/types.h"
-#include "fslam/server/frame_codec.hpp"
 #include "fslam/server/grounding.hpp"
 
 namespace fslam::server {
 
+class Counters;
 class HealthFile;
 class MapDirectoryMember;
+class MapRegistry;
+class Queries;
+class Replies;
+class Sessions;
 
 inline core::PipelineConfig realtime_pipeline() {
   core::PipelineConfig c;
@@ -43,6 +48,13 @@ inline core::PipelineConfig realtime_pipeline() {
 struct DatasetSettings {
   std::string intrinsics;     // fx,fy,cx,cy[,width,height]; empty: the dataset's own
   std::string colour_camera;  // fx,fy,cx,cy,tx,ty,tz; empty: colour registered to depth
+};
+
+// What runs the server's rasterisers (compute.backend): "auto" takes a usable GPU for rendering
+// queries and keeps mapping on the CPU; "cpu"; or "cuda", which needs a CUDA build and a usable GPU
+// (else activation fails saying why). backend_factory.hpp says what each choice makes.
+struct ComputeSettings {
+  std::string backend = "auto";  // auto | cpu | cuda
 };
 
 struct ServerConfig {
@@ -85,6 +97,7 @@ struct ServerConfig {
   // makes closing a session wait for it (core's default suits offline `fslam run`).
   core::PipelineConfig pipeline = realtime_pipeline();
   DatasetSettings dataset;
+  ComputeSettings compute;
   bool is_valid(std::string* why = nullptr) const;
   // The prefix of the instance's own topics (frames, poses, session, requests, results, status):
   // <prefix>/<instance> with '-' as '_' (Cyclone refuses '-' in topic names; pod names have it).
@@ -123,51 +136,9 @@ class Server {
   void set_log(std::function<void(const std::string&)> log);
 
  private:
-  struct MapEntry;
-  struct Session;
-  struct QueuedFrame;
-  struct PreparedFrame;
-  struct Query;
   void ingest();
-  void serve_queries();
-  void handle_control(const fslam_proto_SessionControl& msg);
-  void handle_frame(const fslam_proto_Frame& msg);
-  void accept_request(const fslam_proto_Request& msg);
-  void answer(const Query& query);
-  // Fill `result`, whose images point into `buffers` and `images`.
-  bool render(const Query& query, MapEntry& map, fslam_proto_Result* result,
-              std::vector<std::vector<std::uint8_t>>* buffers,
-              std::vector<fslam_proto_Image>* images, std::string* why);
-  bool segment(const Query& query, MapEntry& map, fslam_proto_Result* result,
-               std::vector<std::vector<std::uint8_t>>* buffers,
-               std::vector<fslam_proto_Image>* images, std::string* why);
-  // The camera and pose a RenderRequest names (pose or tracked frame, intrinsics or the map's
-  // camera), checked against the server's limits.
-  bool resolve_view(const fslam_proto_RenderRequest& request, MapEntry& map, core::RenderView* view,
-                    Eigen::Isometry3d* T_world_camera, std::string* why) const;
-  bool save(MapEntry& map, const std::string& folder, std::string* why);
-  bool load(const std::string& name, const std::string& folder, std::string* why);
-  std::shared_ptr<MapEntry> find_map(const std::string& name) const;
-  void publish_result(const char* client, std::uint64_t request_id, const std::string& map_name,
-                      const std::string& error);
-  // A frame accepted and then not tracked under the live policy, on the pose stream.
-  void publish_skip(const std::string& session, std::uint64_t frame_id, double timestamp,
-                    const std::string& reason);
-  static void run_on_one_thread(const std::function<void()>& work);
-  // A session's frame threads: decode + prepare (features, source Gaussians), then register;
-  // or one thread doing both (server.pipelined_tracking false).
-  void prepare_frames(Session* session);
-  void track_frames(Session* session);
-  void prepare_and_track_frames(Session* session);
-  bool next_queued(Session* session, bool room, QueuedFrame* queued);
-  bool prepare_one(Session* session, QueuedFrame&& queued, PreparedFrame* prepared);
-  void track_one(Session* session, PreparedFrame&& prepared);
   void publish_status();
-  void finish_session(Session* session);
   void log(const std::string& message) const;
-  // Scale-out (map_directory.hpp): stop serving a map another instance holds by the claim rule;
-  // its streaming session, if any, is closed with an error result saying why.
-  void withdraw_map(const std::string& name, const std::string& reason);
 
   ServerConfig config_;
   bool configured_ = false;
@@ -176,21 +147,16 @@ class Server {
   client::Entity status_topic_, requests_topic_, frame_reader_, control_reader_, request_reader_;
   client::Entity pose_writer_, result_writer_, status_writer_, waitset_;
   std::thread ingest_thread_;
-  std::vector<std::thread> query_threads_;
   std::atomic<bool> stop_{false};
   std::shared_ptr<const core::Rasterizer> query_rasterizer_;
   std::unique_ptr<GroundingDetector> grounding_;  // null without server.grounding_model
   std::unique_ptr<MapDirectoryMember> directory_;  // while active
   std::unique_ptr<HealthFile> health_;             // null without server.health_file
-
-  mutable std::mutex mutex_;  // guards everything below
-  std::map<std::string, std::shared_ptr<MapEntry>> maps_;
-  std::map<std::string, std::unique_ptr<Session>> sessions_;
-  std::vector<std::thread> closers_;  // sessions being drained after a close
-  std::deque<std::unique_ptr<Query>> queries_;
-  std::condition_variable query_wake_;
-  bool queries_stopping_ = false;
-  ServerStats stats_;
+  std::unique_ptr<Counters> counters_;
+  std::unique_ptr<MapRegistry> maps_;    // from configure on
+  std::unique_ptr<Replies> replies_;     // from activate on, with
+  std::unique_ptr<Sessions> sessions_;   //   the sessions
+  std::unique_ptr<Queries> queries_;     //   and the queries
 };
 
 // Prints the effective configuration, then runs a server until SIGINT or SIGTERM, reporting on

@@ -117,6 +117,75 @@ TEST(Segmentation, ABoxPromptSelectsThePanelInside) {
   EXPECT_LT(mask_iou(mask, s.truth(), 1), 0.01);
 }
 
+// Several boxes select the union of their objects: here the left and right panels, never the
+// far panel that shares the left one's latent.
+TEST(Segmentation, SeveralBoxPromptsSelectTheUnionOfTheirObjects) {
+  Scene s;
+  const PromptSelector prompts(s.map, PromptConfig{});
+  const BoxPrompt left{34.0, 35.0, 76.0, 85.0}, right{84.0, 35.0, 126.0, 85.0};
+  std::vector<std::uint8_t> both, only_left, only_right;
+  std::string why;
+  ASSERT_TRUE(prompts.select_by_boxes(*s.rasterizer, s.view, {left, right}, &both, &why)) << why;
+  ASSERT_TRUE(prompts.select_by_box(*s.rasterizer, s.view, left, &only_left, &why)) << why;
+  ASSERT_TRUE(prompts.select_by_box(*s.rasterizer, s.view, right, &only_right, &why)) << why;
+  ASSERT_EQ(both.size(), s.map.size());
+  for (std::size_t i = 0; i < s.map.size(); ++i) {
+    ASSERT_EQ(both[i], only_left[i] | only_right[i]) << "Gaussian " << i;
+  }
+  cv::Mat mask;
+  ASSERT_TRUE(render_selection(*s.rasterizer, s.map, both, s.view, kMinObjectAlpha, &mask, &why)) << why;
+  cv::Mat truth = s.truth(), panels = (truth == 1) | (truth == 2);
+  cv::Mat panels_id(truth.size(), CV_32SC1, cv::Scalar(0));
+  panels_id.setTo(1, panels);
+  EXPECT_GT(mask_iou(mask, panels_id, 1), 0.9);
+  EXPECT_LT(mask_iou(mask, truth, 3), 0.01) << "the far panel shares a latent, not a surface";
+  // A box over nothing fails the whole request, naming the box's failure.
+  const BoxPrompt empty_corner{0.0, 0.0, 20.0, 20.0};
+  EXPECT_FALSE(prompts.select_by_boxes(*s.rasterizer, s.view, {right, empty_corner}, &both, &why));
+  EXPECT_NE(why.find("hits no surface"), std::string::npos) << why;
+}
+
+// The label cache clusters each map version once, under the number it was first labelled as,
+// and carries the ids of the version before; a version it cannot cluster leaves it unchanged.
+TEST(Segmentation, TheLabelCacheClustersEachVersionOnceAndCarriesIds) {
+  Scene s;
+  InstanceLabelCache cache;
+  const auto first_map = std::make_shared<const GaussianMap>(s.map);
+  VersionLabels first, again, second, none;
+  std::string why;
+  EXPECT_FALSE(cache.holds(first_map));
+  ASSERT_TRUE(cache.labels_for(1, first_map, &first, &why)) << why;
+  ASSERT_EQ(first.labels->count, 3);
+  EXPECT_TRUE(cache.holds(first_map));
+  ASSERT_TRUE(cache.labels_for(2, first_map, &again, &why)) << why;
+  EXPECT_EQ(again.labels, first.labels) << "clustered twice";
+  EXPECT_EQ(again.version_number, 1u);
+  // A later version whose left panel lost half its Gaussians: the raw numbering by size changes
+  // (the right panel is now the largest), the carried ids do not.
+  GaussianMap later = s.map;
+  std::vector<std::uint8_t> keep(s.map.size(), 1);
+  for (std::size_t i = 0; i < s.left; i += 2) keep[i] = 0;
+  later.keep_only(keep);
+  const auto later_map = std::make_shared<const GaussianMap>(later);
+  ASSERT_TRUE(cache.labels_for(3, later_map, &second, &why)) << why;
+  EXPECT_EQ(second.version_number, 3u);
+  EXPECT_EQ(second.map, later_map);
+  EXPECT_FALSE(cache.holds(first_map));
+  ASSERT_EQ(second.labels->label.size(), later.size());
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < s.map.size(); ++i) {
+    if (!keep[i]) continue;
+    EXPECT_EQ(second.labels->label[k], first.labels->label[i]) << "Gaussian " << i;
+    ++k;
+  }
+  GaussianMap bare = s.map;
+  bare.feature_dim = 0;
+  bare.features.clear();
+  EXPECT_FALSE(cache.labels_for(4, std::make_shared<const GaussianMap>(bare), &none, &why));
+  EXPECT_NE(why.find("no features"), std::string::npos) << why;
+  EXPECT_TRUE(cache.holds(later_map));
+}
+
 // A narrow strip beside a wide panel whose latent is close to the strip's (RMS difference about
 // 0.8 after standardising, inside the prompts' threshold range), and a third panel far in space
 // and latent that sets the spread. `strip_z`: the strip's plane; the panel's is z = 2 m.

@@ -1,10 +1,14 @@
-// Frames as they come off the wire (frame_codec.hpp): what is refused before decoding (sizes,
-// headers that disagree with the frame, decompression bombs) and what decodes.
-#include "fslam/server/frame_codec.hpp"
+// The wire conversions (wire.hpp). Frames as they come off the wire: what is refused before
+// decoding (sizes, headers that disagree with the frame, decompression bombs, poses that are not
+// rigid) and what decodes; poses both ways; result images and the buffers they point into.
+#include "fslam/server/wire.hpp"
 
+#include <limits>
 #include <vector>
 
+#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 namespace fslam::server {
@@ -84,6 +88,62 @@ TEST(FrameCodec, RefusesHeadersThatDisagreeWithTheFrameAndOversizedFrames) {
   garbage.colour.assign(garbage.colour.size(), 0x42);
   EXPECT_FALSE(accept_frame(garbage.msg, &accepted, &why));
   EXPECT_NE(why.find("header cannot be read"), std::string::npos) << why;
+}
+
+TEST(FrameCodec, RefusesAGroundTruthPoseThatIsNotRigid) {
+  WireFrame wire(64, 48, 64, 48, fslam_proto_ENCODING_PNG);
+  wire.msg.has_gt_pose = true;
+  wire.msg.gt_pose.rotation[3] = 1.0;
+  wire.msg.gt_pose.translation[0] = 0.25;
+  EncodedFrame accepted;
+  std::string why;
+  ASSERT_TRUE(accept_frame(wire.msg, &accepted, &why)) << why;
+  ASSERT_TRUE(accepted.T_world_camera_gt.has_value());
+  EXPECT_NEAR(accepted.T_world_camera_gt->translation().x(), 0.25, 1e-12);  // metres
+  wire.msg.gt_pose.rotation[3] = 0.9;  // |q| = 0.9: not a rotation
+  EXPECT_FALSE(accept_frame(wire.msg, &accepted, &why));
+  EXPECT_EQ(why, "ground-truth pose: translation must be finite and the quaternion unit length");
+}
+
+TEST(Wire, PosesRoundTripAndNonRigidOnesAreRefused) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(0.5, -1.25, 2.0);
+  fslam_proto_Pose pose{};
+  to_wire(T, &pose);
+  Eigen::Isometry3d back;
+  std::string why;
+  ASSERT_TRUE(from_wire(pose, &back, &why)) << why;
+  EXPECT_LT((back.translation() - T.translation()).norm(), 1e-12);                    // metres
+  EXPECT_LT(Eigen::AngleAxisd(back.linear().transpose() * T.linear()).angle(), 1e-9);  // radians
+  pose.translation[1] = std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(from_wire(pose, &back, &why));
+  EXPECT_NE(why.find("translation must be finite"), std::string::npos) << why;
+}
+
+TEST(Wire, ResultImagesArePngsThatPointIntoTheirBuffers) {
+  cv::Mat mask(4, 6, CV_8UC1, cv::Scalar(0)), depth(4, 6, CV_16UC1, cv::Scalar(1234));
+  mask.at<std::uint8_t>(2, 3) = 255;
+  fslam_proto_Result result{};
+  ResultImages images;
+  ASSERT_TRUE(attach_images({mask, depth}, &result, &images));
+  ASSERT_EQ(result.images._length, 2u);
+  ASSERT_EQ(result.images._buffer, images.images.data());
+  const fslam_proto_Image& wire_depth = result.images._buffer[1];
+  EXPECT_EQ(wire_depth.encoding, fslam_proto_ENCODING_PNG);
+  EXPECT_EQ(wire_depth.width, 6u);
+  EXPECT_EQ(wire_depth.height, 4u);
+  EXPECT_EQ(wire_depth.channels, 1);
+  EXPECT_EQ(wire_depth.bytes_per_channel, 2);
+  EXPECT_EQ(wire_depth.data._buffer, images.buffers[1].data());
+  for (int i = 0; i < 2; ++i) {
+    const fslam_proto_Image& image = result.images._buffer[i];
+    const cv::Mat bytes(1, static_cast<int>(image.data._length), CV_8UC1, image.data._buffer);
+    const cv::Mat decoded = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+    const cv::Mat& sent = i == 0 ? mask : depth;
+    ASSERT_EQ(decoded.type(), sent.type());
+    EXPECT_EQ(cv::norm(decoded, sent, cv::NORM_INF), 0.0) << "image " << i;  // lossless
+  }
 }
 
 }  // namespace

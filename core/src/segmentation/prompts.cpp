@@ -1,172 +1,21 @@
-#include "fslam/core/segmentation/segmentation.hpp"
+#include "fslam/core/segmentation/prompts.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <deque>
-#include <map>
-#include <numeric>
 #include <queue>
 #include <tuple>
 
-#include <flann/flann.hpp>
-
 #include "fslam/core/error.hpp"
 #include "fslam/core/math/splat_math.hpp"
+#include "feature_space.hpp"
 
 namespace fslam::core {
 namespace {
 
-float sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
-
-// For each of the `count` points (rows of xyz in `points`, the points `index` was built on), the
-// rows of its `knn` nearest other points within `radius`.
-std::vector<std::vector<int>> knn_within(const flann::Index<flann::L2<float>>& index,
-                                         const std::vector<float>& points, int knn, float radius) {
-  const std::size_t m = points.size() / 3;
-  std::vector<std::vector<int>> out(m);
-  if (m == 0) return out;
-  const int k = std::min<int>(knn + 1, static_cast<int>(m));
-  std::vector<int> idx(m * static_cast<std::size_t>(k));
-  std::vector<float> d2(m * static_cast<std::size_t>(k));
-  flann::Matrix<int> im(idx.data(), m, static_cast<std::size_t>(k));
-  flann::Matrix<float> dm(d2.data(), m, static_cast<std::size_t>(k));
-  flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
-  params.cores = 1;
-  const_cast<flann::Index<flann::L2<float>>&>(index).knnSearch(
-      flann::Matrix<float>(const_cast<float*>(points.data()), m, 3), im, dm, k, params);
-  const float r2 = radius * radius;
-  for (std::size_t q = 0; q < m; ++q)
-    for (int j = 0; j < k; ++j) {
-      const int other = idx[q * k + j];
-      if (other < 0 || static_cast<std::size_t>(other) == q || d2[q * k + j] > r2) continue;
-      out[q].push_back(other);
-    }
-  return out;
-}
-
-// The Gaussians taking part, their standardised latents and a k-d tree over their means.
-class FeatureSpace {
- public:
-  FeatureSpace(const GaussianMap& map, const FeatureGraphConfig& config) : map_(map), config_(config) {
-    for (std::size_t i = 0; i < map.size(); ++i)
-      if (sigmoid(map.opacity_logits[i]) >= config.min_opacity) active_.push_back(static_cast<int>(i));
-    d_ = map.feature_dim;
-    // Latents have no fixed scale: centre them per channel and divide by one spread for all
-    // channels (the RMS of the channels' standard deviations). A per-channel scale would blow
-    // up channels that carry only noise.
-    mean_.assign(static_cast<std::size_t>(d_), 0.0f);
-    inv_std_.assign(static_cast<std::size_t>(d_), 1.0f);
-    if (active_.empty() || d_ == 0) return;
-    std::vector<double> sum(d_, 0.0), sum2(d_, 0.0);
-    for (int i : active_)
-      for (int c = 0; c < d_; ++c) {
-        const double f = map.features[static_cast<std::size_t>(i) * d_ + c];
-        sum[c] += f;
-        sum2[c] += f * f;
-      }
-    const double n = static_cast<double>(active_.size());
-    double variance = 0.0;
-    for (int c = 0; c < d_; ++c) {
-      mean_[c] = static_cast<float>(sum[c] / n);
-      variance += std::max(0.0, sum2[c] / n - (sum[c] / n) * (sum[c] / n)) / d_;
-    }
-    inv_std_.assign(static_cast<std::size_t>(d_), static_cast<float>(1.0 / std::max(std::sqrt(variance), 1e-6)));
-    z_.resize(map.size() * static_cast<std::size_t>(d_));
-    for (std::size_t i = 0; i < map.size(); ++i) standardise(&map.features[i * d_], &z_[i * d_]);
-    points_.resize(active_.size() * 3);
-    for (std::size_t k = 0; k < active_.size(); ++k)
-      for (int a = 0; a < 3; ++a) points_[k * 3 + a] = map.means[static_cast<std::size_t>(active_[k]) * 3 + a];
-    index_ = std::make_unique<flann::Index<flann::L2<float>>>(
-        flann::Matrix<float>(points_.data(), active_.size(), 3), flann::KDTreeSingleIndexParams(10));
-    index_->buildIndex();
-  }
-
-  const std::vector<int>& active() const { return active_; }
-  int dim() const { return d_; }
-  void standardise(const float* f, float* z) const {
-    for (int c = 0; c < d_; ++c) z[c] = (f[c] - mean_[c]) * inv_std_[c];
-  }
-  const float* z(int i) const { return &z_[static_cast<std::size_t>(i) * d_]; }
-  // RMS difference of two standardised latents.
-  float distance(const float* a, const float* b) const {
-    float s = 0;
-    for (int c = 0; c < d_; ++c) s += (a[c] - b[c]) * (a[c] - b[c]);
-    return std::sqrt(s / static_cast<float>(d_));
-  }
-  bool alike(int i, int j) const { return distance(z(i), z(j)) < config_.feature_threshold; }
-
-  // Spatial neighbours (map indices) of every map index: k nearest within the radius.
-  std::vector<std::vector<int>> neighbours() const {
-    std::vector<std::vector<int>> out(map_.size());
-    if (active_.empty()) return out;
-    const std::vector<std::vector<int>> rows =
-        knn_within(*index_, points_, config_.knn, config_.max_neighbour_distance);
-    for (std::size_t q = 0; q < rows.size(); ++q)
-      for (int other : rows[q]) {
-        out[static_cast<std::size_t>(active_[q])].push_back(active_[static_cast<std::size_t>(other)]);
-      }
-    return out;
-  }
-
-  // Active map indices within `radius` of `p` (world frame, metres), nearest first.
-  std::vector<int> within(const Eigen::Vector3f& p, float radius) const {
-    std::vector<int> out;
-    if (active_.empty()) return out;
-    float q[3] = {p.x(), p.y(), p.z()};
-    std::vector<std::vector<int>> idx;
-    std::vector<std::vector<float>> d2;
-    flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
-    params.sorted = true;
-    index_->radiusSearch(flann::Matrix<float>(q, 1, 3), idx, d2, radius * radius, params);
-    for (int k : idx[0]) out.push_back(active_[static_cast<std::size_t>(k)]);
-    return out;
-  }
-
- private:
-  const GaussianMap& map_;
-  FeatureGraphConfig config_;
-  std::vector<int> active_;  // map indices
-  int d_ = 0;
-  std::vector<float> mean_, inv_std_, z_, points_;
-  std::unique_ptr<flann::Index<flann::L2<float>>> index_;
-};
-
-struct UnionFind {
-  std::vector<int> parent;
-  explicit UnionFind(std::size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
-  int find(int x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  }
-  void join(int a, int b) { parent[find(a)] = find(b); }
-};
-
-bool check_features(const GaussianMap& map, std::string* why) {
-  if (map.feature_dim > 0 && map.features.size() != map.size() * static_cast<std::size_t>(map.feature_dim)) {
-    return fail(why, "segmentation: the map's feature array does not match its size");
-  }
-  if (!has_features(map)) return fail(why, "segmentation: the map carries no features (its latents are all alike)");
-  return true;
-}
-
-// A copy of the map's geometry and opacity (colour DC only) whose D feature channels the caller
-// fills: rendering them gives per-pixel sums of blending weights per channel.
-GaussianMap geometry_copy(const GaussianMap& map, int channels) {
-  GaussianMap g;
-  g.sh_degree = 0;
-  g.feature_dim = channels;
-  g.means = map.means;
-  g.rotations = map.rotations;
-  g.log_scales = map.log_scales;
-  g.opacity_logits = map.opacity_logits;
-  g.filter_3d = map.filter_3d;
-  const int k = map.sh_per_gaussian();
-  g.sh.resize(map.size() * 3);
-  for (std::size_t i = 0; i < map.size(); ++i)
-    for (int c = 0; c < 3; ++c) g.sh[i * 3 + c] = map.sh[i * static_cast<std::size_t>(k) + c];
-  g.features.assign(map.size() * static_cast<std::size_t>(channels), 0.0f);
-  return g;
-}
+using segmentation_detail::check_features;
+using segmentation_detail::FeatureSpace;
+using segmentation_detail::spatial_neighbours;
 
 // Grows the object from `seeds` over the spatial neighbour graph, best match first: a Gaussian
 // joins while its latent is within `threshold` of the object's running mean latent, which
@@ -362,16 +211,6 @@ PromptStep describe_step(const FeatureSpace& space, const std::vector<std::vecto
   return step;
 }
 
-// Every Gaussian's `knn` nearest Gaussians of any opacity within `max_neighbour_distance`.
-std::vector<std::vector<int>> spatial_neighbours(const GaussianMap& map, const FeatureGraphConfig& config) {
-  if (map.empty()) return {};
-  std::vector<float> points(map.means);
-  flann::Index<flann::L2<float>> index(flann::Matrix<float>(points.data(), map.size(), 3),
-                                       flann::KDTreeSingleIndexParams(10));
-  index.buildIndex();
-  return knn_within(index, points, config.knn, config.max_neighbour_distance);
-}
-
 // The prompt's refinement in 3D (PromptConfig::fill_rounds): Gaussians outside `region` whose
 // spatial neighbours are at least `fraction` inside join it, `rounds` times, all of a round at once.
 void fill_region(const std::vector<std::vector<int>>& spatial, int rounds, float fraction,
@@ -445,22 +284,6 @@ std::size_t pick_prompt_threshold(const std::vector<PromptStep>& steps, const Pr
   return steps.size() - 1;
 }
 
-bool has_features(const GaussianMap& map) {
-  if (map.feature_dim <= 0 || map.features.empty()) return false;
-  const auto [lo, hi] = std::minmax_element(map.features.begin(), map.features.end());
-  return *hi > *lo;
-}
-
-bool FeatureGraphConfig::is_valid(std::string* why) const {
-  if (knn < 1) return fail(why, "segmentation: knn must be >= 1");
-  if (!(max_neighbour_distance > 0)) return fail(why, "segmentation: max_neighbour_distance must be > 0");
-  if (!(feature_threshold > 0)) return fail(why, "segmentation: feature_threshold must be > 0");
-  if (!(min_opacity >= 0 && min_opacity < 1)) return fail(why, "segmentation: min_opacity must be in [0, 1)");
-  return true;
-}
-
-bool PromptlessConfig::is_valid(std::string* why) const { return graph.is_valid(why); }
-
 bool PromptConfig::is_valid(std::string* why) const {
   if (!(seed_radius > 0)) return fail(why, "segmentation: seed_radius must be > 0");
   if (adaptive_threshold) {
@@ -484,177 +307,6 @@ bool PromptConfig::is_valid(std::string* why) const {
     return fail(why, "segmentation: fill_fraction must be in (0, 1]");
   }
   return graph.is_valid(why);
-}
-
-bool cluster_instances(const GaussianMap& map, const PromptlessConfig& config, GaussianLabels* labels,
-                       std::string* why) {
-  if (!config.is_valid(why) || !check_features(map, why)) return false;
-  const FeatureSpace space(map, config.graph);
-  const std::vector<std::vector<int>> neighbours = space.neighbours();
-  // Neighbour pairs joined in order of latent difference, and only while the two regions'
-  // mean latents stay alike: a region cannot creep across an object boundary through the
-  // blended latents there (single linkage would chain through them).
-  std::vector<std::tuple<float, int, int>> edges;
-  for (int i : space.active())
-    for (int j : neighbours[static_cast<std::size_t>(i)]) {
-      if (j <= i) continue;
-      const float d = space.distance(space.z(i), space.z(j));
-      if (d < config.graph.feature_threshold) edges.emplace_back(d, i, j);
-    }
-  std::sort(edges.begin(), edges.end());
-  const int dim = space.dim();
-  std::vector<float> sum(map.size() * static_cast<std::size_t>(dim));  // per root: sum of z
-  std::vector<float> count(map.size(), 1.0f);
-  for (int i : space.active()) std::copy(space.z(i), space.z(i) + dim, &sum[static_cast<std::size_t>(i) * dim]);
-  std::vector<float> mean_a(static_cast<std::size_t>(dim)), mean_b(static_cast<std::size_t>(dim));
-  UnionFind sets(map.size());
-  for (const auto& [d, i, j] : edges) {
-    const int a = sets.find(i), b = sets.find(j);
-    if (a == b) continue;
-    float* sa = &sum[static_cast<std::size_t>(a) * dim];
-    float* sb = &sum[static_cast<std::size_t>(b) * dim];
-    for (int c = 0; c < dim; ++c) {
-      mean_a[c] = sa[c] / count[a];
-      mean_b[c] = sb[c] / count[b];
-    }
-    if (space.distance(mean_a.data(), mean_b.data()) >= config.graph.feature_threshold) continue;
-    sets.parent[a] = b;
-    for (int c = 0; c < dim; ++c) sb[c] += sa[c];
-    count[b] += count[a];
-  }
-  // Small regions (texture speckle, boundary Gaussians) join their most alike neighbour region.
-  for (int round = 0; round < 8; ++round) {
-    std::map<int, std::size_t> size;
-    for (int i : space.active()) ++size[sets.find(i)];
-    std::map<int, std::pair<float, int>> best;  // small root -> (distance, other root)
-    for (int i : space.active()) {
-      const int a = sets.find(i);
-      if (size[a] >= config.min_instance_gaussians) continue;
-      for (int j : neighbours[static_cast<std::size_t>(i)]) {
-        const int b = sets.find(j);
-        if (b == a) continue;
-        const float d = space.distance(space.z(i), space.z(j));
-        auto it = best.find(a);
-        if (it == best.end() || d < it->second.first) best[a] = {d, b};
-      }
-    }
-    if (best.empty()) break;
-    for (const auto& [a, target] : best) sets.join(a, target.second);
-  }
-  std::map<int, std::size_t> size;
-  for (int i : space.active()) ++size[sets.find(i)];
-  std::vector<std::pair<std::size_t, int>> order;  // (size, root), largest first
-  for (const auto& [root, n] : size)
-    if (n >= config.min_instance_gaussians) order.push_back({n, root});
-  std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) {
-    return a.first != b.first ? a.first > b.first : a.second < b.second;
-  });
-  std::map<int, int> id;
-  for (std::size_t k = 0; k < order.size(); ++k) id[order[k].second] = static_cast<int>(k);
-  labels->label.assign(map.size(), -1);
-  labels->count = static_cast<int>(order.size());
-  for (int i : space.active()) {
-    const auto it = id.find(sets.find(i));
-    if (it != id.end()) labels->label[static_cast<std::size_t>(i)] = it->second;
-  }
-  return true;
-}
-
-void carry_instance_ids(const GaussianMap& previous_map, const GaussianLabels& previous,
-                        const GaussianMap& map, float radius, GaussianLabels* labels) {
-  if (previous_map.empty() || labels->count == 0) return;
-  std::vector<float> points(previous_map.means);
-  flann::Index<flann::L2<float>> index(flann::Matrix<float>(points.data(), previous_map.size(), 3),
-                                       flann::KDTreeSingleIndexParams(10));
-  index.buildIndex();
-  // votes[new id][old id] = Gaussians of the new instance next to the old one.
-  std::vector<std::map<int, std::size_t>> votes(static_cast<std::size_t>(labels->count));
-  flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED);
-  params.cores = 1;
-  int nn = 0;
-  float d2 = 0;
-  for (std::size_t i = 0; i < map.size(); ++i) {
-    const int l = labels->label[i];
-    if (l < 0) continue;
-    float q[3] = {map.means[i * 3], map.means[i * 3 + 1], map.means[i * 3 + 2]};
-    flann::Matrix<int> im(&nn, 1, 1);
-    flann::Matrix<float> dm(&d2, 1, 1);
-    index.knnSearch(flann::Matrix<float>(q, 1, 3), im, dm, 1, params);
-    if (d2 > radius * radius) continue;
-    const int old = previous.label[static_cast<std::size_t>(nn)];
-    if (old >= 0) ++votes[static_cast<std::size_t>(l)][old];
-  }
-  // Greedy by vote count: each old id goes to at most one new instance.
-  std::vector<std::tuple<std::size_t, int, int>> pairs;  // (votes, new, old)
-  for (int l = 0; l < labels->count; ++l)
-    for (const auto& [old, n] : votes[static_cast<std::size_t>(l)]) pairs.push_back({n, l, old});
-  std::sort(pairs.begin(), pairs.end(), [](const auto& a, const auto& b) { return std::get<0>(a) > std::get<0>(b); });
-  std::vector<int> mapping(static_cast<std::size_t>(labels->count), -1);
-  std::vector<bool> taken(static_cast<std::size_t>(std::max(previous.count, 0)), false);
-  for (const auto& [n, l, old] : pairs) {
-    if (mapping[static_cast<std::size_t>(l)] >= 0 || old >= previous.count || taken[static_cast<std::size_t>(old)]) continue;
-    mapping[static_cast<std::size_t>(l)] = old;
-    taken[static_cast<std::size_t>(old)] = true;
-  }
-  int next = previous.count;
-  for (int& m : mapping)
-    if (m < 0) m = next++;
-  for (int& l : labels->label)
-    if (l >= 0) l = mapping[static_cast<std::size_t>(l)];
-  labels->count = next;
-}
-
-bool render_labels(const Rasterizer& rasterizer, const GaussianMap& map, const GaussianLabels& labels,
-                   const RenderView& view, float min_alpha, cv::Mat* ids, std::string* why) {
-  if (labels.label.size() != map.size()) return fail(why, "render labels: one label per Gaussian expected");
-  constexpr int kChunk = 16;  // labels rendered per pass, as one-hot feature channels
-  const int chunks = std::max(1, (labels.count + kChunk - 1) / kChunk);
-  GaussianMap g = geometry_copy(map, kChunk);
-  RenderSettings settings;
-  settings.features = true;
-  cv::Mat best(view.camera.height, view.camera.width, CV_32FC1, cv::Scalar(0));
-  cv::Mat total(view.camera.height, view.camera.width, CV_32FC1, cv::Scalar(0));
-  *ids = cv::Mat(view.camera.height, view.camera.width, CV_32SC1, cv::Scalar(-1));
-  for (int chunk = 0; chunk < chunks; ++chunk) {
-    std::fill(g.features.begin(), g.features.end(), 0.0f);
-    for (std::size_t i = 0; i < map.size(); ++i) {
-      const int c = labels.label[i] - chunk * kChunk;
-      if (c >= 0 && c < kChunk) g.features[i * kChunk + static_cast<std::size_t>(c)] = 1.0f;
-    }
-    RenderResult r;
-    if (!rasterizer.forward(g, view, settings, &r, why)) return false;
-    for (int v = 0; v < view.camera.height; ++v)
-      for (int u = 0; u < view.camera.width; ++u)
-        for (int c = 0; c < kChunk; ++c) {
-          const float w = r.features.at(c, v, u);
-          total.at<float>(v, u) += w;
-          if (w > best.at<float>(v, u)) {
-            best.at<float>(v, u) = w;
-            ids->at<int>(v, u) = chunk * kChunk + c;
-          }
-        }
-  }
-  ids->setTo(-1, total < min_alpha);
-  return true;
-}
-
-bool render_selection(const Rasterizer& rasterizer, const GaussianMap& map,
-                      const std::vector<std::uint8_t>& selected, const RenderView& view,
-                      float min_alpha, cv::Mat* mask, std::string* why) {
-  if (selected.size() != map.size()) return fail(why, "render selection: one flag per Gaussian expected");
-  GaussianMap g = geometry_copy(map, 1);
-  for (std::size_t i = 0; i < map.size(); ++i) g.features[i] = selected[i] ? 1.0f : 0.0f;
-  RenderSettings settings;
-  settings.features = true;
-  RenderResult r;
-  if (!rasterizer.forward(g, view, settings, &r, why)) return false;
-  *mask = cv::Mat(view.camera.height, view.camera.width, CV_8UC1, cv::Scalar(0));
-  for (int v = 0; v < view.camera.height; ++v)
-    for (int u = 0; u < view.camera.width; ++u) {
-      const float alpha = r.alpha.at(0, v, u), in = r.features.at(0, v, u);
-      if (alpha >= min_alpha && in >= 0.5f * alpha) mask->at<std::uint8_t>(v, u) = 255;
-    }
-  return true;
 }
 
 // The feature space and neighbour graph of one map, built once for all its prompts.
@@ -755,6 +407,18 @@ bool PromptSelector::select_by_box(const Rasterizer& rasterizer, const RenderVie
   };
   if (!select_region(space, neighbours, graph_->smooth, graph_->spatial, config, seeds_for, median.data(), selected)) {
     return fail(why, "box prompt: no Gaussian inside the box has the box's features");
+  }
+  return true;
+}
+
+bool PromptSelector::select_by_boxes(const Rasterizer& rasterizer, const RenderView& view,
+                                     const std::vector<BoxPrompt>& boxes, std::vector<std::uint8_t>* selected,
+                                     std::string* why) const {
+  selected->assign(map_.size(), 0);
+  for (const BoxPrompt& box : boxes) {
+    std::vector<std::uint8_t> one;
+    if (!select_by_box(rasterizer, view, box, &one, why)) return false;
+    for (std::size_t i = 0; i < one.size(); ++i) (*selected)[i] |= one[i];
   }
   return true;
 }

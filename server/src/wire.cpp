@@ -1,15 +1,20 @@
-#include "fslam/server/frame_codec.hpp"
+#include "fslam/server/wire.hpp"
 
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <utility>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "fslam/core/error.hpp"
+#include "fslam/server/render_images.hpp"
 
 namespace fslam::server {
+
+// ---- frames ----------------------------------------------------------------------------------
+
 namespace {
 
 // Focal lengths a real camera can have at the frame's size: a field of view between about 0.1
@@ -151,15 +156,8 @@ bool accept_frame(const fslam_proto_Frame& msg, EncodedFrame* out, std::string* 
   }
   out->T_world_camera_gt.reset();
   if (msg.has_gt_pose) {
-    const auto& p = msg.gt_pose;
-    const Eigen::Quaterniond q(p.rotation[3], p.rotation[0], p.rotation[1], p.rotation[2]);
-    const Eigen::Vector3d t(p.translation[0], p.translation[1], p.translation[2]);
-    if (!t.allFinite() || !std::isfinite(q.norm()) || std::abs(q.norm() - 1.0) > 1e-3) {
-      return core::fail(why, "ground-truth pose: translation must be finite and the quaternion unit length");
-    }
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = q.normalized().toRotationMatrix();
-    T.translation() = t;
+    Eigen::Isometry3d T;
+    if (!from_wire(msg.gt_pose, &T, &reason)) return core::fail(why, "ground-truth " + reason);
     out->T_world_camera_gt = T;
   }
   if (!accept_image(msg.colour, 3, 1, "colour", &out->colour, why) ||
@@ -194,6 +192,167 @@ bool decode_frame(const EncodedFrame& in, core::RgbdFrame* frame, std::string* w
 bool decode_frame(const fslam_proto_Frame& msg, core::RgbdFrame* frame, std::string* why) {
   EncodedFrame encoded;
   return accept_frame(msg, &encoded, why) && decode_frame(encoded, frame, why);
+}
+
+// ---- poses ----------------------------------------------------------------------------------
+
+void to_wire(const Eigen::Isometry3d& T, fslam_proto_Pose* pose) {
+  const Eigen::Quaterniond q(T.rotation());
+  for (int k = 0; k < 3; ++k) pose->translation[k] = T.translation()[k];
+  pose->rotation[0] = q.x();
+  pose->rotation[1] = q.y();
+  pose->rotation[2] = q.z();
+  pose->rotation[3] = q.w();
+}
+
+bool from_wire(const fslam_proto_Pose& pose, Eigen::Isometry3d* T, std::string* why) {
+  const Eigen::Quaterniond q(pose.rotation[3], pose.rotation[0], pose.rotation[1], pose.rotation[2]);
+  const Eigen::Vector3d t(pose.translation[0], pose.translation[1], pose.translation[2]);
+  if (!t.allFinite() || !std::isfinite(q.norm()) || std::abs(q.norm() - 1.0) > 1e-3) {
+    return core::fail(why, "pose: translation must be finite and the quaternion unit length");
+  }
+  T->setIdentity();
+  T->linear() = q.normalized().toRotationMatrix();
+  T->translation() = t;
+  return true;
+}
+
+// ---- requests --------------------------------------------------------------------------------
+
+Query query_of(const fslam_proto_Request& msg) {
+  Query query;
+  query.client = text(msg.client);
+  query.request_id = msg.request_id;
+  query.map_name = text(msg.map_name);
+  query.path = text(msg.path);
+  query.kind = msg.kind;
+  query.render = msg.render;
+  if (msg.kind == fslam_proto_REQUEST_SEGMENT) {
+    const fslam_proto_SegmentRequest& seg = msg.segment;
+    query.segment_mode = seg.mode;
+    query.points = floats(seg.points);
+    query.boxes = floats(seg.boxes);
+    query.text = text(seg.text);
+    query.has_output_view = seg.has_output_view;
+    query.output_view = seg.output_view;
+  }
+  if (msg.kind == fslam_proto_REQUEST_MAP_GAUSSIANS) query.export_request = export_request_of(msg);
+  return query;
+}
+
+// ---- results ---------------------------------------------------------------------------------
+
+std::vector<ChannelImage> render_channels(const core::RenderResult& rendered,
+                                          const core::PinholeCamera& camera,
+                                          std::uint32_t channels, float depth_scale) {
+  std::vector<ChannelImage> out;
+  if (channels & fslam_proto_CHANNEL_COLOUR) {
+    out.push_back({fslam_proto_CHANNEL_COLOUR, colour_to_rgb8(rendered.colour)});
+  }
+  if (channels & fslam_proto_CHANNEL_DEPTH) {
+    const core::PlanarImage& d = rendered.depth;
+    cv::Mat depth(d.height, d.width, CV_16UC1, cv::Scalar(0));
+    for (int v = 0; v < d.height; ++v)
+      for (int u = 0; u < d.width; ++u) {
+        const float alpha = rendered.alpha.at(0, v, u);
+        if (alpha < 0.5f) continue;
+        const double raw = std::round(d.at(0, v, u) / alpha * depth_scale);
+        if (raw > 0 && raw < 65535) depth.at<std::uint16_t>(v, u) = static_cast<std::uint16_t>(raw);
+      }
+    out.push_back({fslam_proto_CHANNEL_DEPTH, depth});
+  }
+  if (channels & fslam_proto_CHANNEL_NORMALS) {
+    out.push_back({fslam_proto_CHANNEL_NORMALS, normals_to_rgb8(rendered.median_depth, camera.intrinsics())});
+  }
+  if (channels & fslam_proto_CHANNEL_OPACITY) {
+    cv::Mat grey;
+    plane_to_mat(rendered.alpha, 0).convertTo(grey, CV_8U, 255.0);
+    out.push_back({fslam_proto_CHANNEL_OPACITY, grey});
+  }
+  return out;
+}
+
+bool encode_png(const cv::Mat& image, std::vector<std::uint8_t>* bytes) {
+  cv::Mat file_order = image;
+  if (image.type() == CV_8UC3) cv::cvtColor(image, file_order, cv::COLOR_RGB2BGR);
+  return cv::imencode(".png", file_order, *bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
+}
+
+bool attach_images(const std::vector<cv::Mat>& mats, fslam_proto_Result* result, ResultImages* out) {
+  std::vector<std::vector<std::uint8_t>>& buffers = out->buffers;
+  std::vector<fslam_proto_Image>& images = out->images;
+  buffers.resize(mats.size());
+  images.resize(mats.size());
+  for (std::size_t i = 0; i < mats.size(); ++i) {
+    const cv::Mat& image = mats[i];
+    if (!encode_png(image, &buffers[i])) return false;
+    images[i] = {fslam_proto_ENCODING_PNG,
+                 static_cast<std::uint32_t>(image.cols),
+                 static_cast<std::uint32_t>(image.rows),
+                 static_cast<std::uint8_t>(image.channels()),
+                 static_cast<std::uint8_t>(image.elemSize1()),
+                 {static_cast<std::uint32_t>(buffers[i].size()),
+                  static_cast<std::uint32_t>(buffers[i].size()), buffers[i].data(), false}};
+  }
+  result->images = {static_cast<std::uint32_t>(images.size()),
+                    static_cast<std::uint32_t>(images.size()), images.data(), false};
+  return true;
+}
+
+void describe_view(const core::RenderView& view, const Eigen::Isometry3d& T_world_camera,
+                   fslam_proto_Result* result) {
+  to_wire(T_world_camera, &result->T_world_camera);
+  result->intrinsics = {static_cast<float>(view.camera.fx), static_cast<float>(view.camera.fy),
+                        static_cast<float>(view.camera.cx), static_cast<float>(view.camera.cy),
+                        static_cast<std::uint32_t>(view.camera.width),
+                        static_cast<std::uint32_t>(view.camera.height)};
+}
+
+void Replies::result(const char* client, std::uint64_t request_id, const std::string& map_name,
+                     const std::string& error) const {
+  fslam_proto_Result r{};
+  std::string c = text(client), m = map_name, e = error, empty;
+  r.client = c.data();
+  r.request_id = request_id;
+  r.map_name = m.data();
+  r.status = error.empty() ? fslam_proto_RESULT_OK : fslam_proto_RESULT_ERROR;
+  r.error = e.data();
+  r.path = empty.data();
+  dds_write(result_writer_, &r);
+}
+
+void Replies::result(const fslam_proto_Result& result) const { dds_write(result_writer_, &result); }
+
+void Replies::pose(const std::string& session, std::uint64_t frame_id, double timestamp,
+                   const core::TrackingResult& tracked, double decode_ms, double queue_ms,
+                   double track_ms) const {
+  fslam_proto_PoseStamped pose{};
+  std::string name = session;
+  pose.session = name.data();
+  pose.frame_id = frame_id;
+  pose.timestamp = timestamp;
+  to_wire(tracked.T_world_camera, &pose.T_world_camera);
+  pose.state = static_cast<fslam_proto_TrackingState>(static_cast<int>(tracked.state));
+  pose.keyframe = tracked.keyframe;
+  pose.decode_ms = static_cast<float>(decode_ms);
+  pose.queue_ms = static_cast<float>(queue_ms);
+  pose.track_ms = static_cast<float>(track_ms);
+  std::string note = tracked.message;
+  pose.note = note.data();
+  dds_write(pose_writer_, &pose);
+}
+
+void Replies::skip(const std::string& session, std::uint64_t frame_id, double timestamp,
+                   const std::string& reason) const {
+  fslam_proto_PoseStamped pose{};
+  std::string name = session, note = reason;
+  pose.session = name.data();
+  pose.frame_id = frame_id;
+  pose.timestamp = timestamp;
+  pose.T_world_camera.rotation[3] = 1.0;
+  pose.state = fslam_proto_TRACKING_SKIPPED;
+  pose.note = note.data();
+  dds_write(pose_writer_, &pose);
 }
 
 }  // namespace fslam::server

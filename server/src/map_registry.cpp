@@ -1,0 +1,187 @@
+#include "map_registry.hpp"
+
+#include <filesystem>
+#include <set>
+
+#include "fslam/core/error.hpp"
+#include "fslam/server/map_directory.hpp"
+
+namespace fslam::server {
+
+void MapRegistry::set_directory(MapDirectoryMember* directory) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  directory_ = directory;
+  if (directory_) {
+    for (const auto& [name, map] : maps_) directory_->claim(name);
+  }
+}
+
+std::shared_ptr<MapEntry> MapRegistry::find(const std::string& name) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = maps_.find(name);
+  return it == maps_.end() ? nullptr : it->second;
+}
+
+std::size_t MapRegistry::count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return maps_.size();
+}
+
+std::map<std::string, std::shared_ptr<MapEntry>> MapRegistry::all() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return maps_;
+}
+
+std::vector<std::shared_ptr<MapEntry>> MapRegistry::idle() const {
+  std::vector<std::shared_ptr<MapEntry>> idle;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [name, map] : maps_) {
+    std::lock_guard<std::mutex> mlock(map->mutex);
+    if (!map->streaming) idle.push_back(map);
+  }
+  return idle;
+}
+
+std::shared_ptr<MapEntry> MapRegistry::open_streaming(
+    const std::string& name,
+    const std::function<std::shared_ptr<core::SlamPipeline>(std::string* why)>& make_pipeline,
+    std::string* why) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (maps_.size() >= config_.max_maps) {
+    core::fail(why, "the server holds its limit of " + std::to_string(config_.max_maps) +
+                        " maps (server.max_maps)");
+    return nullptr;
+  }
+  if (maps_.count(name) != 0) {
+    // Growing a finished or loaded map would need relocalising in it first: not supported.
+    core::fail(why, "map '" + name + "' exists; stream into a new map name (query "
+                    "this one with render requests)");
+    return nullptr;
+  }
+  if (directory_ && !directory_->may_claim(name, true, why)) return nullptr;
+  std::shared_ptr<core::SlamPipeline> pipeline = make_pipeline(why);
+  if (!pipeline) return nullptr;
+  auto map = std::make_shared<MapEntry>();
+  map->name = name;
+  map->pipeline = std::move(pipeline);
+  map->streaming = true;
+  maps_[name] = map;
+  if (directory_) directory_->claim(name);
+  return map;
+}
+
+void MapRegistry::withdraw(const std::string& name) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  maps_.erase(name);
+}
+
+bool MapRegistry::load(const std::string& name, const std::string& folder, std::string* why) {
+  if (!valid_map_name(name, why)) return false;
+  StoredMap stored;
+  if (!load_map_folder(folder, &stored, why)) return false;
+  auto map = std::make_shared<MapEntry>();
+  map->name = name;
+  map->loaded.publish(stored.gaussians);
+  map->camera = stored.camera;
+  map->poses = std::move(stored.poses);
+  for (std::size_t i = 0; i < map->poses.size(); ++i) map->pose_index[map->poses[i].frame_id] = i;
+  map->saved = {map->loaded.version_number(), map->poses.size()};
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = maps_.find(name);
+  if (it != maps_.end()) {
+    std::lock_guard<std::mutex> mlock(it->second->mutex);
+    if (it->second->streaming) {
+      return core::fail(why, "load map: map '" + name + "' has a streaming session; close it first");
+    }
+  }
+  if (it == maps_.end() && maps_.size() >= config_.max_maps) {
+    return core::fail(why, "load map: the server holds its limit of " + std::to_string(config_.max_maps) +
+                               " maps (server.max_maps)");
+  }
+  // At start the directory does not exist yet: set_directory claims every loaded map.
+  if (directory_ && !directory_->may_claim(name, false, why)) return false;
+  maps_[name] = map;  // queries in flight keep the version they hold
+  if (directory_) directory_->claim(name);
+  return true;
+}
+
+bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* why) {
+  StoredMap stored;
+  std::pair<std::uint64_t, std::size_t> state;
+  {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    state = {map.versions().version_number(), map.poses.size()};
+    stored.gaussians = map.versions().latest();
+    stored.camera = map.camera;
+    stored.poses = map.poses;
+  }
+  if (!save_map_folder(folder, stored, why)) return false;
+  // Only a save to the map's own folder (the one a restart loads it from) counts as saved.
+  std::string home, ignored;
+  if (resolve_map_folder(config_.map_dir, "", map.name, &home, &ignored) && home == folder) {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    map.saved = state;
+  }
+  return true;
+}
+
+bool MapRegistry::load_saved_maps(std::string* why) {
+  if (config_.map_dir.empty()) return true;
+  std::error_code ec;
+  std::filesystem::create_directories(config_.map_dir, ec);
+  if (ec) return core::fail(why, "map_dir " + config_.map_dir + ": " + ec.message());
+  if (!config_.load_maps_at_start) return true;
+  // A save killed half-way left `.NAME.saving` / `.NAME.old` beside NAME: whole versions
+  // first (map_files.hpp), then every map folder. One bad folder is reported and skipped:
+  // the other maps are still served.
+  std::set<std::string> interrupted;
+  for (const auto& entry : std::filesystem::directory_iterator(config_.map_dir, ec)) {
+    const std::string hidden = entry.path().filename().string();
+    for (const std::string suffix : {".saving", ".old"}) {
+      if (hidden.size() > suffix.size() + 1 && hidden[0] == '.' &&
+          hidden.compare(hidden.size() - suffix.size(), suffix.size(), suffix) == 0) {
+        interrupted.insert(hidden.substr(1, hidden.size() - suffix.size() - 1));
+      }
+    }
+  }
+  for (const std::string& name : interrupted) {
+    std::string note;
+    recover_map_folder((std::filesystem::path(config_.map_dir) / name).string(), &note);
+    if (!note.empty()) log(note);
+  }
+  for (const auto& entry : std::filesystem::directory_iterator(config_.map_dir, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.empty() || name[0] == '.') continue;  // a save's staging, or not ours
+    if (!entry.is_directory() || !is_map_folder(entry.path().string())) continue;
+    std::string invalid;
+    if (!valid_map_name(name, &invalid)) {
+      log("skipped map folder " + entry.path().string() + ": " + invalid);
+      continue;
+    }
+    std::string load_why;
+    if (load(name, entry.path().string(), &load_why)) {
+      log("loaded map '" + name + "' from " + entry.path().string() + " (" +
+          std::to_string(find(name)->loaded.latest()->size()) + " Gaussians)");
+    } else {
+      log("skipped map folder " + entry.path().string() + ": " + load_why);
+    }
+  }
+  return true;
+}
+
+void MapRegistry::save_changed_maps() {
+  for (auto& [name, map] : all()) {
+    std::string folder, why;
+    {
+      std::lock_guard<std::mutex> lock(map->mutex);
+      if (map->saved == std::make_pair(map->versions().version_number(), map->poses.size())) continue;
+    }
+    if (resolve_map_folder(config_.map_dir, "", name, &folder, &why) && save(*map, folder, &why)) {
+      log("saved map '" + name + "' to " + folder);
+    } else {
+      log("could not save map '" + name + "': " + why);
+    }
+  }
+}
+
+}  // namespace fslam::server

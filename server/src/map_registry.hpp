@@ -1,0 +1,93 @@
+// The maps a server serves, by name: built by a streaming session or loaded from disk, found by
+// queries, saved and loaded under server.map_dir (map_files.hpp), given up when another instance
+// holds them (map_directory.hpp), and bounded by server.max_maps.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "fslam/core/pipeline/slam_pipeline.hpp"
+#include "fslam/core/segmentation/instances.hpp"
+#include "fslam/server/map_export.hpp"
+#include "fslam/server/map_files.hpp"
+#include "fslam/server/server.hpp"
+
+namespace fslam::server {
+
+// A map the server serves: built by a streaming session (pipeline) or loaded from disk (loaded).
+// Kept after its session closes, so that it can still be queried and saved.
+struct MapEntry {
+  std::string name;
+  std::shared_ptr<core::SlamPipeline> pipeline;  // null for a loaded map
+  core::MapVersions loaded;
+  std::mutex mutex;  // guards everything below
+  core::PinholeCamera camera;  // of the frames streamed into it; width 0 before the first
+  std::vector<FramePose> poses;
+  std::unordered_map<std::uint64_t, std::size_t> pose_index;  // frame id -> poses[]
+  bool streaming = false;
+  std::pair<std::uint64_t, std::size_t> saved{0, 0};  // (version, poses) last saved at home
+  // Held while clustering (apart from `mutex`, which tracking takes per frame), so that each
+  // clustering carries its ids from the one before: ids form one chain over the versions.
+  std::mutex instances_mutex;
+  core::InstanceLabelCache instances;  // guarded by instances_mutex
+  MapExporter exporter;                // versions that chunked exports read (map_export.hpp)
+
+  core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
+};
+
+class MapRegistry {
+ public:
+  using Log = std::function<void(const std::string&)>;
+  // `config` must outlive the registry.
+  MapRegistry(const ServerConfig& config, Log log) : config_(config), log_(std::move(log)) {}
+
+  // The instance's membership of the map directory while it serves (null: none, as at start):
+  // every map it holds is claimed there, and a new one only when the claim rule allows.
+  void set_directory(MapDirectoryMember* directory);
+
+  std::shared_ptr<MapEntry> find(const std::string& name) const;
+  std::size_t count() const;
+  std::map<std::string, std::shared_ptr<MapEntry>> all() const;
+  // The maps no session streams into.
+  std::vector<std::shared_ptr<MapEntry>> idle() const;
+
+  // A new map for a streaming session, its pipeline made by `make_pipeline` once the name is
+  // free, within server.max_maps and claimable; null with `why` otherwise.
+  std::shared_ptr<MapEntry> open_streaming(
+      const std::string& name,
+      const std::function<std::shared_ptr<core::SlamPipeline>(std::string* why)>& make_pipeline,
+      std::string* why);
+  // Stops serving `name` (queries in flight keep the version they hold; nothing is saved).
+  void withdraw(const std::string& name);
+
+  // Loads the map saved in `folder` as `name`, replacing a map of that name without a session.
+  bool load(const std::string& name, const std::string& folder, std::string* why);
+  // Saves the newest version of `map` to `folder`; a save to its home folder marks it saved.
+  bool save(MapEntry& map, const std::string& folder, std::string* why);
+  // At start: makes server.map_dir and, with server.load_maps_at_start, loads every map saved
+  // there (after finishing saves a kill interrupted); bad folders are logged and skipped.
+  // False with `why` when map_dir cannot be made.
+  bool load_saved_maps(std::string* why);
+  // At shutdown: saves every map changed since its last save to its home folder, logging each.
+  void save_changed_maps();
+
+ private:
+  void log(const std::string& message) const {
+    if (log_) log_(message);
+  }
+
+  const ServerConfig& config_;
+  Log log_;
+  mutable std::mutex mutex_;  // guards everything below
+  std::map<std::string, std::shared_ptr<MapEntry>> maps_;
+  MapDirectoryMember* directory_ = nullptr;
+};
+
+}  // namespace fslam::server

@@ -1,0 +1,453 @@
+#include "sessions.hpp"
+
+#include <utility>
+
+#include <tbb/task_arena.h>
+
+#include "fslam/core/eval/percentile.hpp"
+#include "fslam/server/backend_factory.hpp"
+#include "fslam/server/map_files.hpp"
+#include "counters.hpp"
+#include "map_registry.hpp"
+
+namespace fslam::server {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Frames prepared ahead of registration in a queue-policy session (each holds a decoded frame
+// and a feature pyramid, ~20 MB): the preparing thread waits rather than run further ahead.
+constexpr std::size_t kPreparedAhead = 2;
+constexpr std::size_t kTimingWindow = 1000;
+
+void record(std::deque<double>* window, double ms) {
+  window->push_back(ms);
+  if (window->size() > kTimingWindow) window->pop_front();
+}
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+}  // namespace
+
+struct Sessions::QueuedFrame {
+  EncodedFrame frame;
+  Clock::time_point queued;
+};
+
+// A decoded frame with its latent and source Gaussians (core::SlamPipeline::prepare_frame),
+// waiting for registration; the times so far go on its pose.
+struct Sessions::PreparedFrame {
+  core::PreparedFrame frame;
+  Clock::time_point ready;
+  double decode_ms = 0, queue_ms = 0, prepare_ms = 0;
+};
+
+// One streaming session: its waiting frames and its two threads; the pipeline is its map's.
+struct Sessions::Session {
+  std::string name;
+  std::shared_ptr<MapEntry> map;
+  bool live = true;  // frame policy: live (newest frame only) or queue
+  std::mutex mutex;
+  std::condition_variable wake;
+  std::deque<QueuedFrame> queue;  // accepted, waiting to be prepared; live: at most one
+  std::deque<PreparedFrame> prepared;  // waiting to be registered; live: at most one
+  bool closing = false;
+  bool preparing_done = false;    // the preparing thread drained `queue` after closing
+  bool started = false;           // the first frame was registered (tracking thread only)
+  std::thread preparing, tracking;
+  std::unique_ptr<MappingThread> mapping;
+  // Status counters (guarded by `mutex`).
+  std::uint64_t received = 0, processed = 0, dropped = 0, skipped = 0;
+  std::string last_drop_reason, last_skip_reason;
+  // The latest stage times, for p50 / p99 (each bounded to kTimingWindow entries).
+  std::deque<double> decode_ms, queue_ms, track_ms, map_ms;
+};
+
+Sessions::Sessions(const ServerConfig& config, MapRegistry& maps, const Replies& replies,
+                   Counters& counters, Log log)
+    : config_(config), maps_(maps), replies_(replies), counters_(counters), log_(std::move(log)) {}
+
+Sessions::~Sessions() { close_all(); }
+
+std::size_t Sessions::count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return sessions_.size();
+}
+
+// ---- control ---------------------------------------------------------------------------------
+
+void Sessions::handle_control(const fslam_proto_SessionControl& msg) {
+  const std::string name = text(msg.session);
+  const std::string map_name = msg.map_name != nullptr && msg.map_name[0] ? msg.map_name : name;
+  if (name.empty()) return replies_.result(msg.session, msg.request_id, map_name, "session name is empty");
+  if (msg.attach_only) {
+    // A query-only client: nothing to create, the answer says whether the map is there.
+    const bool exists = maps_.find(map_name) != nullptr;
+    return replies_.result(msg.session, msg.request_id, map_name,
+                           exists ? "" : "no map named '" + map_name + "'");
+  }
+  if (msg.command == fslam_proto_SESSION_OPEN) return open_session(msg, name, map_name);
+  std::unique_ptr<Session> closing;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = sessions_.find(name);
+    if (it == sessions_.end()) {
+      return replies_.result(msg.session, msg.request_id, map_name, "unknown session '" + name + "'");
+    }
+    closing = std::move(it->second);
+    sessions_.erase(it);
+  }
+  // Draining a session (its queued frames, then mapping) can take a while: do it off the
+  // ingest thread so that other sessions keep flowing, and answer when it is done.
+  close_later(std::move(closing), text(msg.session), msg.request_id);
+}
+
+void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::string& name,
+                            const std::string& map_name) {
+  const auto reply = [&](const std::string& error) {
+    replies_.result(msg.session, msg.request_id, map_name, error);
+  };
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = sessions_.find(name);
+    if (it != sessions_.end()) {
+      if (it->second->map->name == map_name) return reply("");
+      return reply("session '" + name + "' already streams into map '" + it->second->map->name + "'");
+    }
+    std::string why;
+    if (!valid_map_name(map_name, &why)) return reply(why);
+    if (sessions_.size() >= config_.max_sessions) {
+      return reply("the server streams its limit of " + std::to_string(config_.max_sessions) +
+                   " sessions (server.max_sessions); close one first");
+    }
+    std::shared_ptr<MapEntry> map = maps_.open_streaming(
+        map_name, [this](std::string* pipeline_why) { return make_pipeline(pipeline_why); }, &why);
+    if (!map) return reply(why);
+    auto s = std::make_unique<Session>();
+    s->name = name;
+    s->map = map;
+    s->live = msg.policy == fslam_proto_POLICY_LIVE ||
+              (msg.policy != fslam_proto_POLICY_QUEUE && config_.frame_policy == "live");
+    start_threads(s.get());
+    sessions_[name] = std::move(s);
+  }
+  reply("");
+}
+
+std::shared_ptr<core::SlamPipeline> Sessions::make_pipeline(std::string* why) const {
+  std::string notice;
+  std::shared_ptr<const core::Rasterizer> rasterizer =
+      make_rasterizer(config_.compute.backend, RasterUse::kMapping, &notice, why);
+  if (!rasterizer) return nullptr;
+  std::unique_ptr<core::LatentFeatures> features;
+  if (config_.pipeline.features.enabled()) {
+    features = core::LatentFeatures::create(config_.pipeline.features, why);
+    if (!features) return nullptr;
+  }
+  return std::make_shared<core::SlamPipeline>(config_.pipeline, rasterizer, std::move(features));
+}
+
+// The threads hold `raw`: the session outlives them (finish_session joins them).
+void Sessions::start_threads(Session* raw) {
+  if (config_.pipelined_tracking) {
+    raw->preparing = std::thread([this, raw] { run_on_one_thread([&] { prepare_frames(raw); }); });
+    raw->tracking = std::thread([this, raw] { run_on_one_thread([&] { track_frames(raw); }); });
+  } else {
+    raw->tracking = std::thread([this, raw] { run_on_one_thread([&] { prepare_and_track_frames(raw); }); });
+  }
+  raw->mapping = std::make_unique<MappingThread>(
+      raw->map->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
+      [raw](const core::KeyframeReport& report) {
+        const core::RefinementStats& r = report.refinement;
+        std::lock_guard<std::mutex> lock(raw->mutex);
+        record(&raw->map_ms, r.insert_ms + r.optimise_ms + r.prune_ms);
+      },
+      [this, raw](const std::string& mwhy) {
+        // Tracking goes on; clients learn that the map stopped growing, and why.
+        replies_.result(raw->name.c_str(), 0, raw->map->name, "mapping failed: " + mwhy);
+      });
+}
+
+void Sessions::close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id) {
+  const std::string map = session->map->name;
+  std::lock_guard<std::mutex> lock(mutex_);
+  closers_.push_back(std::thread([this, owned = std::move(session), client, map, request_id] {
+    finish_session(owned.get());
+    replies_.result(client.c_str(), request_id, map, "");
+  }));
+}
+
+void Sessions::withdraw_map(const std::string& name, const std::string& reason) {
+  std::unique_ptr<Session> closing;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
+      if (it->second->map->name != name) continue;
+      closing = std::move(it->second);
+      sessions_.erase(it);
+      break;
+    }
+    maps_.withdraw(name);  // queries in flight keep the version they hold; nothing is saved
+  }
+  if (log_) log_("gave up map '" + name + "': it " + reason);
+  if (!closing) return;
+  std::string session = closing->name;
+  replies_.result(session.c_str(), 0, name, "map '" + name + "' " + reason + "; session '" +
+                                                session + "' is closed here");
+  std::lock_guard<std::mutex> lock(mutex_);
+  closers_.push_back(std::thread([this, owned = std::move(closing)] { finish_session(owned.get()); }));
+}
+
+void Sessions::finish_session(Session* s) {
+  {
+    std::lock_guard<std::mutex> lock(s->mutex);
+    s->closing = true;
+  }
+  s->wake.notify_all();
+  if (s->preparing.joinable()) s->preparing.join();
+  if (s->tracking.joinable()) s->tracking.join();  // every accepted frame is tracked
+  s->map->pipeline->finish();
+  if (s->mapping) s->mapping->join();
+  std::lock_guard<std::mutex> lock(s->map->mutex);
+  s->map->streaming = false;
+}
+
+void Sessions::close_all() {
+  std::map<std::string, std::unique_ptr<Session>> sessions;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    sessions.swap(sessions_);
+  }
+  for (auto& [name, s] : sessions) finish_session(s.get());
+  std::vector<std::thread> closers;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    closers.swap(closers_);
+  }
+  for (std::thread& t : closers) t.join();
+}
+
+std::vector<SessionReport> Sessions::reports() const {
+  std::vector<SessionReport> reports;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [name, s] : sessions_) {
+    SessionReport r;
+    r.session = s->name;
+    r.map_name = s->map->name;
+    r.map = s->map;
+    r.frame_policy = s->live ? "live" : "queue";
+    fslam_proto_SessionStatus& st = r.numbers;
+    std::lock_guard<std::mutex> qlock(s->mutex);
+    st.queue_depth = static_cast<std::uint32_t>(s->queue.size());
+    st.frames_received = s->received;
+    st.frames_processed = s->processed;
+    st.frames_dropped = s->dropped;
+    st.frames_skipped = s->skipped;
+    r.last_drop_reason = s->last_drop_reason;
+    r.last_skip_reason = s->last_skip_reason;
+    auto p = [](const std::deque<double>& w, double q) {
+      return static_cast<float>(core::percentile(std::vector<double>(w.begin(), w.end()), q));
+    };
+    st.decode_ms_p50 = p(s->decode_ms, 0.5);
+    st.decode_ms_p99 = p(s->decode_ms, 0.99);
+    st.queue_ms_p50 = p(s->queue_ms, 0.5);
+    st.queue_ms_p99 = p(s->queue_ms, 0.99);
+    st.track_ms_p50 = p(s->track_ms, 0.5);
+    st.track_ms_p99 = p(s->track_ms, 0.99);
+    st.map_ms_p50 = p(s->map_ms, 0.5);
+    st.map_ms_p99 = p(s->map_ms, 0.99);
+    reports.push_back(std::move(r));
+  }
+  return reports;
+}
+
+// ---- frames ----------------------------------------------------------------------------------
+
+void Sessions::handle_frame(const fslam_proto_Frame& msg) {
+  const std::string name = text(msg.session);
+  // Cheap checks and a copy of the payloads; decoding waits for the tracking thread, so that a
+  // frame the live policy skips costs nothing more.
+  QueuedFrame queued;
+  std::string accept_why, why;
+  const bool accepted = accept_frame(msg, &queued.frame, &accept_why);
+  std::lock_guard<std::mutex> lock(mutex_);
+  counters_.add(&ServerStats::frames_received);
+  const auto it = sessions_.find(name);
+  if (it == sessions_.end()) why = "unknown session '" + name + "' (open it first)";
+  else if (!accepted) why = accept_why;
+  if (!why.empty()) {
+    counters_.add(&ServerStats::frames_rejected);
+    const std::string message = "frame " + std::to_string(msg.frame_id) + ": " + why;
+    if (it != sessions_.end()) {
+      std::lock_guard<std::mutex> qlock(it->second->mutex);
+      ++it->second->received;
+      ++it->second->dropped;
+      it->second->last_drop_reason = message;
+    }
+    replies_.result(msg.session, msg.frame_id, name, message);
+    return;
+  }
+  Session& s = *it->second;
+  {
+    std::lock_guard<std::mutex> qlock(s.mutex);
+    ++s.received;
+    if (s.live) {
+      // Live: the tracker takes the newest frame; one still waiting is skipped, and said so.
+      while (!s.queue.empty()) {
+        const EncodedFrame& old = s.queue.front().frame;
+        counters_.add(&ServerStats::frames_skipped);
+        ++s.skipped;
+        s.last_skip_reason = "frame " + std::to_string(old.frame_id) + " skipped: frame " +
+                             std::to_string(msg.frame_id) + " arrived while tracking was busy (live policy)";
+        replies_.skip(s.name, old.frame_id, old.timestamp, s.last_skip_reason);
+        s.queue.pop_front();
+      }
+    } else if (s.queue.size() >= config_.queue_capacity) {
+      counters_.add(&ServerStats::frames_dropped);
+      ++s.dropped;
+      s.last_drop_reason = "frame " + std::to_string(msg.frame_id) + " dropped: queue full (" +
+                           std::to_string(config_.queue_capacity) + " frames)";
+      replies_.result(msg.session, msg.frame_id, name, s.last_drop_reason);
+      return;
+    }
+    queued.queued = Clock::now();
+    s.queue.push_back(std::move(queued));
+  }
+  s.wake.notify_all();
+}
+
+void Sessions::run_on_one_thread(const std::function<void()>& work) {
+  // A session's frame threads (prepare, register; or both in one) each run in an arena of their
+  // own with no workers: the parallel loops inside decoding and the feature encoder
+  // (OpenCV runs on TBB) never wait for a TBB worker busy with, or niced by, mapping.
+  tbb::task_arena one_thread(1);
+  one_thread.execute(work);
+}
+bool Sessions::prepare_one(Session* s, QueuedFrame&& queued, PreparedFrame* prepared) {
+  prepared->queue_ms = ms_since(queued.queued);
+  std::string why;
+  core::RgbdFrame frame;
+  const Clock::time_point t_decode = Clock::now();
+  const bool decoded = decode_frame(queued.frame, &frame, &why);
+  prepared->decode_ms = ms_since(t_decode);
+  const Clock::time_point t_prepare = Clock::now();
+  const bool ready = decoded && s->map->pipeline->prepare_frame(std::move(frame), &prepared->frame, &why);
+  prepared->prepare_ms = ms_since(t_prepare);
+  prepared->ready = Clock::now();
+  if (ready) return true;
+  const std::string message = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
+  {
+    std::lock_guard<std::mutex> lock(s->mutex);
+    ++s->dropped;
+    s->last_drop_reason = message;
+  }
+  replies_.result(s->name.c_str(), queued.frame.frame_id, s->map->name, message);
+  return false;
+}
+
+// Waits for the next accepted frame; false when the session closes with nothing left.
+// `room`: in a queue-policy session, wait until registration has room for one more.
+bool Sessions::next_queued(Session* s, bool room, QueuedFrame* queued) {
+  std::unique_lock<std::mutex> lock(s->mutex);
+  s->wake.wait(lock, [&] {
+    return (!s->queue.empty() && (!room || s->live || s->prepared.size() < kPreparedAhead)) ||
+           (s->closing && s->queue.empty());
+  });
+  if (s->queue.empty()) return false;
+  *queued = std::move(s->queue.front());
+  s->queue.pop_front();
+  return true;
+}
+
+void Sessions::prepare_and_track_frames(Session* s) {
+  QueuedFrame queued;
+  while (next_queued(s, false, &queued)) {
+    PreparedFrame prepared;
+    if (prepare_one(s, std::move(queued), &prepared)) track_one(s, std::move(prepared));
+  }
+}
+
+void Sessions::prepare_frames(Session* s) {
+  QueuedFrame queued;
+  while (next_queued(s, true, &queued)) {
+    PreparedFrame prepared;
+    if (!prepare_one(s, std::move(queued), &prepared)) continue;
+    {
+      std::lock_guard<std::mutex> lock(s->mutex);
+      if (s->live) {
+        // Live: registration takes the newest prepared frame; one still waiting is skipped.
+        while (!s->prepared.empty()) {
+          const core::RgbdFrame& old = s->prepared.front().frame.frame;
+          ++s->skipped;
+          s->last_skip_reason = "frame " + std::to_string(old.id) + " skipped: frame " +
+                                std::to_string(prepared.frame.frame.id) +
+                                " was ready while registration was busy (live policy)";
+          replies_.skip(s->name, static_cast<std::uint64_t>(old.id), old.timestamp, s->last_skip_reason);
+          s->prepared.pop_front();
+        }
+      }
+      s->prepared.push_back(std::move(prepared));
+    }
+    s->wake.notify_all();
+  }
+  std::lock_guard<std::mutex> lock(s->mutex);
+  s->preparing_done = true;
+  s->wake.notify_all();
+}
+
+void Sessions::track_frames(Session* s) {
+  for (;;) {
+    PreparedFrame prepared;
+    {
+      std::unique_lock<std::mutex> lock(s->mutex);
+      s->wake.wait(lock, [&] { return !s->prepared.empty() || s->preparing_done; });
+      if (s->prepared.empty()) return;  // closing, and everything prepared was registered
+      prepared = std::move(s->prepared.front());
+      s->prepared.pop_front();
+    }
+    s->wake.notify_all();  // a queue-policy preparer may be waiting for room
+    track_one(s, std::move(prepared));
+  }
+}
+
+void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
+  core::SlamPipeline& pipeline = *s->map->pipeline;
+  const double queue_ms = prepared.queue_ms + ms_since(prepared.ready);
+  const core::RgbdFrame& frame = prepared.frame.frame;
+  const std::uint64_t frame_id = static_cast<std::uint64_t>(frame.id);
+  const double timestamp = frame.timestamp;
+  const core::PinholeCamera camera = frame.camera;
+  if (!s->started) {
+    if (frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
+    s->started = true;
+  }
+  core::TrackingResult result;
+  std::string why;
+  const Clock::time_point t0 = Clock::now();
+  const bool tracked = pipeline.track_prepared(std::move(prepared.frame), &result, &why);
+  const double track_ms = prepared.prepare_ms + ms_since(t0);
+  {
+    std::lock_guard<std::mutex> lock(s->mutex);
+    ++s->processed;
+    record(&s->decode_ms, prepared.decode_ms);
+    record(&s->queue_ms, queue_ms);
+    record(&s->track_ms, track_ms);
+  }
+  if (!tracked) {
+    replies_.result(s->name.c_str(), frame_id, s->map->name, why);
+    return;
+  }
+  {
+    std::lock_guard<std::mutex> lock(s->map->mutex);
+    MapEntry& map = *s->map;
+    map.camera = camera;
+    map.pose_index[frame_id] = map.poses.size();
+    map.poses.push_back({frame_id, timestamp, result.T_world_camera});
+  }
+  replies_.pose(s->name, frame_id, timestamp, result, prepared.decode_ms, queue_ms, track_ms);
+  counters_.add(&ServerStats::poses_published);
+}
+
+}  // namespace fslam::server

@@ -1,0 +1,91 @@
+// The streaming sessions of a server (docs/protocol.md): opened and closed by fslam/session
+// control samples, each with its frame policy, its waiting frames and its threads. Frames follow
+// the session's policy: live (the default) tracks the newest frame and skips older waiting ones,
+// reporting each skip on the pose stream; queue tracks every frame from a bounded queue whose
+// overflow drops the newest with an error result.
+#pragma once
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "fslam/core/pipeline/slam_pipeline.hpp"
+#include "fslam/proto/types.h"
+#include "fslam/server/mapping_thread.hpp"
+#include "fslam/server/server.hpp"
+#include "fslam/server/wire.hpp"
+
+namespace fslam::server {
+
+struct MapEntry;
+class MapRegistry;
+class Counters;
+
+// What fslam/status says about one session: its counts and timings in `numbers`, whose strings
+// the fields below fill (they stay valid while the report lives).
+struct SessionReport {
+  fslam_proto_SessionStatus numbers{};
+  std::string session, map_name, frame_policy, last_drop_reason, last_skip_reason;
+  std::shared_ptr<MapEntry> map;
+};
+
+class Sessions {
+ public:
+  using Log = std::function<void(const std::string&)>;
+  // All references must outlive the sessions.
+  Sessions(const ServerConfig& config, MapRegistry& maps, const Replies& replies, Counters& counters,
+           Log log);
+  ~Sessions();
+
+  // A fslam/session sample: open (a new map), close (drain, then answer), or attach only.
+  void handle_control(const fslam_proto_SessionControl& msg);
+  // A fslam/frames sample: checked, then queued by its session's policy (or refused with a result).
+  void handle_frame(const fslam_proto_Frame& msg);
+  // Scale-out (map_directory.hpp): stops serving a map another instance holds by the claim
+  // rule; its streaming session, if any, is closed with an error result saying why.
+  void withdraw_map(const std::string& name, const std::string& reason);
+  // Lets every session track what it accepted, then stops them all (deactivate).
+  void close_all();
+  std::size_t count() const;
+  std::vector<SessionReport> reports() const;
+
+ private:
+  struct QueuedFrame;
+  struct PreparedFrame;
+  struct Session;
+
+  void open_session(const fslam_proto_SessionControl& msg, const std::string& name,
+                    const std::string& map_name);
+  std::shared_ptr<core::SlamPipeline> make_pipeline(std::string* why) const;
+  void start_threads(Session* session);
+  void close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id);
+  void finish_session(Session* session);
+  // A session's frame threads: decode + prepare (features, source Gaussians), then register;
+  // or one thread doing both (server.pipelined_tracking false).
+  static void run_on_one_thread(const std::function<void()>& work);
+  void prepare_frames(Session* session);
+  void track_frames(Session* session);
+  void prepare_and_track_frames(Session* session);
+  bool next_queued(Session* session, bool room, QueuedFrame* queued);
+  bool prepare_one(Session* session, QueuedFrame&& queued, PreparedFrame* prepared);
+  void track_one(Session* session, PreparedFrame&& prepared);
+
+  const ServerConfig& config_;
+  MapRegistry& maps_;
+  const Replies& replies_;
+  Counters& counters_;
+  Log log_;
+  mutable std::mutex mutex_;  // guards everything below
+  std::map<std::string, std::unique_ptr<Session>> sessions_;
+  std::vector<std::thread> closers_;  // sessions being drained after a close
+};
+
+}  // namespace fslam::server
