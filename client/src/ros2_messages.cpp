@@ -102,6 +102,21 @@ std::string dds_topic(const std::string& ros_topic) {
   return "rt/" + name;
 }
 
+dds_qos_t* make_qos(bool reliable, int depth, bool writer) {
+  dds_qos_t* qos = dds_create_qos();
+  dds_qset_reliability(qos, reliable ? DDS_RELIABILITY_RELIABLE : DDS_RELIABILITY_BEST_EFFORT, DDS_SECS(1));
+  dds_qset_durability(qos, DDS_DURABILITY_VOLATILE);
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, depth);
+  if (writer) {
+    const dds_data_representation_id_t xcdr1[] = {DDS_DATA_REPRESENTATION_XCDR1};
+    dds_qset_data_representation(qos, 1, xcdr1);
+  } else {
+    const dds_data_representation_id_t both[] = {DDS_DATA_REPRESENTATION_XCDR1, DDS_DATA_REPRESENTATION_XCDR2};
+    dds_qset_data_representation(qos, 2, both);
+  }
+  return qos;
+}
+
 Stamp Stamp::from_seconds(double seconds) {
   Stamp s;
   const double whole = std::floor(seconds);

@@ -218,6 +218,7 @@ bool ServerConfig::is_valid(std::string* why) const {
     return core::fail(why, "server: instance '" + instance + "' may hold only letters, digits, '-' and '_'");
   }
   if (!grounding().is_valid(why)) return false;
+  if (!ros2.is_valid(why)) return false;
   return pipeline.is_valid(why);
 }
 
@@ -833,6 +834,10 @@ void Server::track_one(Session* s, PreparedFrame&& prepared) {
   std::string note = result.message;
   pose.note = note.data();
   dds_write(pose_writer_.get(), &pose);
+  {
+    std::lock_guard<std::mutex> lock(pose_listener_mutex_);  // ROS 2 bridge hook
+    if (pose_listener_) pose_listener_({s->name, frame_id, result.T_world_camera, result.keyframe});
+  }
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.poses_published;
 }
@@ -1247,6 +1252,46 @@ void Server::withdraw_map(const std::string& name, const std::string& reason) {
                                                session + "' is closed here");
   std::lock_guard<std::mutex> lock(mutex_);
   closers_.push_back(std::thread([this, owned = std::move(closing)] { finish_session(owned.get()); }));
+}
+
+// ---- ROS 2 bridge hook (ros2_bridge.hpp) ----------------------------------------------------
+
+bool Server::open_session(const std::string& session, const std::string& map, bool live, std::string* why) {
+  std::string name = session, map_name = map;
+  fslam_proto_SessionControl msg{};
+  msg.session = name.data();
+  msg.command = fslam_proto_SESSION_OPEN;
+  msg.map_name = map_name.data();
+  msg.policy = live ? fslam_proto_POLICY_LIVE : fslam_proto_POLICY_QUEUE;
+  handle_control(msg);
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = sessions_.find(session);
+  if (it != sessions_.end() && it->second->map->name == map) return true;
+  return core::fail(why, "the server refused session '" + session + "' on map '" + map +
+                             "' (the reason is on " + config_.service_prefix() + "/results)");
+}
+
+void Server::report_rejected(const std::string& session, const std::string& message) {
+  std::string map = session;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++stats_.frames_received;
+    ++stats_.frames_rejected;
+    const auto it = sessions_.find(session);
+    if (it != sessions_.end()) {
+      map = it->second->map->name;
+      std::lock_guard<std::mutex> qlock(it->second->mutex);
+      ++it->second->received;
+      ++it->second->dropped;
+      it->second->last_drop_reason = message;
+    }
+  }
+  publish_result(session.c_str(), 0, map, message);
+}
+
+void Server::set_pose_listener(std::function<void(const TrackedPose&)> listener) {
+  std::lock_guard<std::mutex> lock(pose_listener_mutex_);
+  pose_listener_ = std::move(listener);
 }
 
 }  // namespace fslam::server

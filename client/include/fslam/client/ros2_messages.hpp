@@ -9,12 +9,19 @@
 #include <string>
 #include <vector>
 
+#include <dds/dds.h>
+
 #include "fslam/client/client.hpp"
 
 namespace fslam::client::ros2 {
 
 // The DDS topic of a ROS 2 topic, as rmw_cyclonedds_cpp names it: "/camera/x" -> "rt/camera/x".
 std::string dds_topic(const std::string& ros_topic);
+
+// QoS as rmw_cyclonedds_cpp sets it: volatile, keep last `depth`, reliable (ROS 2's default
+// profile) or best effort (its sensor-data profile). Writers write plain CDR (XCDR1), as ROS 2
+// does; readers take XCDR1 and XCDR2. The caller deletes it (dds_delete_qos).
+dds_qos_t* make_qos(bool reliable, int depth, bool writer);
 
 // builtin_interfaces/msg/Time.
 struct Stamp {

@@ -25,6 +25,7 @@
 #include "fslam/proto/types.h"
 #include "fslam/server/frame_codec.hpp"
 #include "fslam/server/grounding.hpp"
+#include "fslam/server/ros2_config.hpp"
 
 namespace fslam::server {
 
@@ -85,6 +86,7 @@ struct ServerConfig {
   // makes closing a session wait for it (core's default suits offline `fslam run`).
   core::PipelineConfig pipeline = realtime_pipeline();
   DatasetSettings dataset;
+  Ros2Config ros2;  // the ROS 2 bridge (ros2_bridge.hpp); off by default
   bool is_valid(std::string* why = nullptr) const;
   // The prefix of the instance's own topics (frames, poses, session, requests, results, status):
   // <prefix>/<instance> with '-' as '_' (Cyclone refuses '-' in topic names; pod names have it).
@@ -121,6 +123,24 @@ class Server {
   ServerStats stats() const;
   // Where lifecycle messages go (map loaded / saved, failures); default: nowhere.
   void set_log(std::function<void(const std::string&)> log);
+
+  // ---- ROS 2 bridge hook (ros2_bridge.hpp): a session fed in-process, not over fslam/frames ----
+  struct TrackedPose {
+    std::string session;
+    std::uint64_t frame_id = 0;
+    Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+    bool keyframe = false;
+  };
+  // Opens a session as a fslam/session SESSION_OPEN would; false with `why` when refused.
+  bool open_session(const std::string& session, const std::string& map, bool live, std::string* why);
+  // A frame for its session through the path a fslam/frames sample takes (checks, policy, queue).
+  void submit_frame(const fslam_proto_Frame& frame) { handle_frame(frame); }
+  // A frame that could not be built from its messages: counted and reported as a rejected
+  // fslam/frames sample is (session status, fslam/results).
+  void report_rejected(const std::string& session, const std::string& message);
+  // Called on a session's tracking thread after each pose it publishes; empty: none.
+  void set_pose_listener(std::function<void(const TrackedPose&)> listener);
+  // ---- end of the ROS 2 bridge hook ----
 
  private:
   struct MapEntry;
@@ -191,6 +211,8 @@ class Server {
   std::condition_variable query_wake_;
   bool queries_stopping_ = false;
   ServerStats stats_;
+  std::mutex pose_listener_mutex_;  // ROS 2 bridge hook
+  std::function<void(const TrackedPose&)> pose_listener_;
 };
 
 // Prints the effective configuration, then runs a server until SIGINT or SIGTERM, reporting on
