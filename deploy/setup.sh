@@ -70,6 +70,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libtbb-dev
   libpng-dev  # the client writes depth PNGs itself (client/src/depth_png.hpp)
   libboost-dev  # Boost.Beast (headers only): fslam-gateway's HTTP + WebSocket (docs/viewer.md)
+  libsqlite3-dev  # rosbag2 recordings in the sqlite3 storage: fslam stream --rosbag2 (docs/ros2.md)
   python3-onnx  # tests only: writes the tiny ONNX models of the onnx feature encoder's tests
   openssl iproute2  # tests only: DDS Security certificates, network namespaces of the scale-out test
 )

@@ -24,6 +24,7 @@
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/eval/ate.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
+#include "stream_rosbag2.hpp"
 
 namespace fslam::cli {
 namespace {
@@ -40,6 +41,8 @@ struct StreamArgs {
   DiscoveryArgs discovery;
   int timeout_s = 60;        // for the last poses after the last frame
   int window = 32;           // queue policy: frames sent and not answered yet, at most
+  std::string rosbag2, rosbag2_topics;  // a rosbag2 recording instead of --dataset (stream_rosbag2.hpp)
+  double rosbag2_tolerance_ms = 20.0;
 };
 
 // Frame-to-pose latency as the client sees it (push_frame called -> pose received, one clock)
@@ -193,7 +196,10 @@ bool policy_of(const std::string& policy, client::SessionOptions* options) {
 int run_stream(const StreamArgs& args) {
   core::DatasetOptions options;
   std::string why;
-  auto dataset = open_dataset(args.dataset, &options, &why);
+  if (args.rosbag2.empty() == args.dataset.path.empty()) return fail("give one of --dataset and --rosbag2");
+  auto dataset = args.rosbag2.empty() ? open_dataset(args.dataset, &options, &why)
+                                      : open_rosbag2_dataset(args.rosbag2, args.rosbag2_topics,
+                                                             args.rosbag2_tolerance_ms, &why);
   if (!dataset) return fail(why);
   const double rate = parse_rate(args.rate);
   if (rate < 0) return fail("--rate must be a positive number of frames per second or 'max'");
@@ -315,7 +321,14 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
       "stream", "Play a dataset to a running fslam-server over DDS; write the poses it returns "
                 "and print ATE when the dataset has ground truth");
   auto args = std::make_shared<StreamArgs>();
-  add_dataset_options(app, &args->dataset);
+  add_dataset_options(app, &args->dataset, false);
+  app->add_option("--rosbag2", args->rosbag2,
+                  "Play a rosbag2 recording (sqlite3 storage) of a ROS 2 RGB-D camera instead of --dataset");
+  app->add_option("--rosbag2-topics", args->rosbag2_topics,
+                  "colour,depth,camera_info topics of the recording (default: chosen by type)");
+  app->add_option("--rosbag2-tolerance", args->rosbag2_tolerance_ms,
+                  "Milliseconds within which colour and depth header stamps pair")
+      ->capture_default_str();
   app->add_option("--session", args->session, "Session name")->capture_default_str();
   app->add_option("--map", args->map, "Map to create or attach to (default: the session name)");
   app->add_option("--rate", args->rate, "Frames per second, or max")->capture_default_str();

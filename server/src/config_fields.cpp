@@ -254,7 +254,7 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
 
 // The mapper's settings and the latent features' (mapper.*, features.*), in the table after the
 // pipeline's and the tracker's.
-void add_mapper_fields(std::vector<ConfigField>* f) {
+void add_mapper_fields(SettingsTable<core::PipelineConfig>* f) {
   using Mapper = core::MapperConfig;
   const auto mapper = section(f, "mapper", [](auto& c) -> auto& { return c.mapper; });
   mapper.add("sh_degree", &Mapper::sh_degree);
@@ -384,6 +384,27 @@ void add_server_fields(SettingsTable<ServerConfig>* f) {
   compute.add("backend", &ComputeSettings::backend);
 }
 
+// ---- ros2: the ROS 2 bridge (ros2_config.hpp, docs/ros2.md) -----------------------------------
+
+void add_ros2_fields(std::vector<ConfigField>* f) {
+  const auto ros2 = section(f, "ros2", [](auto& c) -> auto& { return c.ros2; });
+  ros2.add("enabled", &Ros2Config::enabled);
+  ros2.add("colour_topic", &Ros2Config::colour_topic);
+  ros2.add("colour_transport", &Ros2Config::colour_transport);
+  ros2.add("depth_topic", &Ros2Config::depth_topic);
+  ros2.add("camera_info_topic", &Ros2Config::camera_info_topic);
+  ros2.add("reliability", &Ros2Config::reliability);
+  ros2.add("stamp_tolerance_ms", &Ros2Config::stamp_tolerance_ms);
+  ros2.add("session", &Ros2Config::session);
+  ros2.add("map", &Ros2Config::map);
+  ros2.add("frame_policy", &Ros2Config::frame_policy);
+  ros2.add("pose_topic", &Ros2Config::pose_topic);
+  ros2.add("path_topic", &Ros2Config::path_topic);
+  ros2.add("tf_topic", &Ros2Config::tf_topic);
+  ros2.add("map_frame", &Ros2Config::map_frame);
+  ros2.add("camera_frame", &Ros2Config::camera_frame);
+}
+
 // ---- lookup and messages ---------------------------------------------------------------------
 
 std::size_t edit_distance(std::string_view a, std::string_view b) {
@@ -466,6 +487,7 @@ const SettingsTable<core::PipelineConfig>& pipeline_settings() {
   static const SettingsTable<core::PipelineConfig> fields = [] {
     SettingsTable<core::PipelineConfig> f;
     add_pipeline_fields(&f);
+    add_mapper_fields(&f);
     return f;
   }();
   return fields;
@@ -486,6 +508,7 @@ const std::vector<ConfigField>& config_fields() {
     std::vector<ConfigField> f;
     add_nested(&f, pipeline_settings(), [](auto& c) -> auto& { return c.pipeline; });
     add_server_fields(&f);
+    add_ros2_fields(&f);
     return f;
   }();
   return fields;

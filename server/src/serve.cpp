@@ -1,11 +1,13 @@
 #include <csignal>
 #include <cstdio>
 #include <exception>
+#include <memory>
 #include <thread>
 
 #include <CLI/CLI.hpp>
 
 #include "fslam/server/config_fields.hpp"
+#include "fslam/server/ros2_bridge.hpp"
 #include "fslam/server/serve_options.hpp"
 #include "fslam/server/server.hpp"
 
@@ -27,6 +29,19 @@ int serve_until_signal(const ServerConfig& config) {
       std::fprintf(stderr, "fslam-server: error: %s\n", why.c_str());
       return 1;
     }
+    // ROS 2 camera topics in, ROS 2 poses out (ros2.enabled, docs/ros2.md).
+    std::unique_ptr<Ros2Bridge> bridge;
+    if (config.ros2.enabled) {
+      bridge = std::make_unique<Ros2Bridge>(&server, config);
+      bridge->set_log([](const std::string& m) { std::fprintf(stderr, "fslam-server: %s\n", m.c_str()); });
+      if (!bridge->start(&why)) {
+        std::fprintf(stderr, "fslam-server: error: %s\n", why.c_str());
+        bridge.reset();
+        server.deactivate();
+        return 1;
+      }
+      std::fprintf(stderr, "fslam-server: %s\n", bridge->describe().c_str());
+    }
     g_stop = 0;
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
@@ -37,7 +52,21 @@ int serve_until_signal(const ServerConfig& config) {
                  config.map_dir.empty() ? "maps are not kept on disk (no --map-dir)"
                                         : ("maps in " + config.map_dir).c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    server.deactivate();
+    if (bridge) bridge->stop_input();
+    server.deactivate();  // the bridge still publishes the poses of the frames tracked here
+    if (bridge) {
+      const Ros2BridgeStats b = bridge->stats();
+      std::fprintf(stderr,
+                   "fslam-server: ROS 2 bridge: colour %llu, depth %llu, camera info %llu received; frames "
+                   "%llu submitted, %llu unpaired, %llu rejected; poses %llu published (%llu keyframes)%s%s\n",
+                   static_cast<unsigned long long>(b.colour_received), static_cast<unsigned long long>(b.depth_received),
+                   static_cast<unsigned long long>(b.camera_info_received),
+                   static_cast<unsigned long long>(b.frames_submitted), static_cast<unsigned long long>(b.unpaired),
+                   static_cast<unsigned long long>(b.rejected), static_cast<unsigned long long>(b.poses_published),
+                   static_cast<unsigned long long>(b.keyframes), b.last_problem.empty() ? "" : "; last problem: ",
+                   b.last_problem.c_str());
+      bridge.reset();
+    }
     const ServerStats stats = server.stats();
     std::fprintf(stderr,
                  "fslam-server: stopped; frames received %llu, rejected %llu, dropped %llu, poses "

@@ -56,6 +56,7 @@ bool ServerConfig::is_valid(std::string* why) const {
     return core::fail(why, "compute.backend must be auto, cpu or cuda, not '" + compute.backend + "'");
   }
   if (!grounding().is_valid(why)) return false;
+  if (!ros2.is_valid(why)) return false;
   return pipeline.is_valid(why);
 }
 
@@ -125,6 +126,7 @@ bool Server::activate(std::string* why) {
   sessions_.reset();
   replies_ = std::make_unique<Replies>(pose_writer_.get(), result_writer_.get());
   sessions_ = std::make_unique<Sessions>(config_, *maps_, *replies_, *counters_, to_log);
+  sessions_->set_pose_listener(pose_listener_);
   queries_ = std::make_unique<Queries>(config_, *maps_, *replies_, *counters_, *query_rasterizer_,
                                        grounding_.get(), to_log);
   stop_ = false;
@@ -227,6 +229,35 @@ void Server::publish_status() {
     describe_map(*map, &st);
     dds_write(status_writer_.get(), &st);
   }
+}
+
+// ---- in-process sessions (the ROS 2 bridge) ------------------------------------------------
+
+bool Server::open_session(const std::string& session, const std::string& map, bool live, std::string* why) {
+  if (!sessions_) return core::fail(why, "the server is not active");
+  std::string name = session, map_name = map;
+  fslam_proto_SessionControl msg{};
+  msg.session = name.data();
+  msg.command = fslam_proto_SESSION_OPEN;
+  msg.map_name = map_name.data();
+  msg.policy = live ? fslam_proto_POLICY_LIVE : fslam_proto_POLICY_QUEUE;
+  sessions_->handle_control(msg);
+  if (sessions_->streams_into(session, map)) return true;
+  return core::fail(why, "the server refused session '" + session + "' on map '" + map +
+                             "' (the reason is on " + config_.service_prefix() + "/results)");
+}
+
+void Server::submit_frame(const fslam_proto_Frame& frame) {
+  if (sessions_) sessions_->handle_frame(frame);
+}
+
+void Server::report_rejected(const std::string& session, const std::string& message) {
+  if (sessions_) sessions_->report_rejected(session, message);
+}
+
+void Server::set_pose_listener(std::function<void(const TrackedPose&)> listener) {
+  pose_listener_ = std::move(listener);
+  if (sessions_) sessions_->set_pose_listener(pose_listener_);
 }
 
 }  // namespace fslam::server

@@ -448,6 +448,39 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
   }
   replies_.pose(s->name, frame_id, timestamp, result, prepared.decode_ms, queue_ms, track_ms);
   counters_.add(&ServerStats::poses_published);
+  std::lock_guard<std::mutex> lock(listener_mutex_);
+  if (pose_listener_) pose_listener_({s->name, frame_id, result.T_world_camera, result.keyframe});
+}
+
+// ---- in-process sessions ---------------------------------------------------------------------
+
+bool Sessions::streams_into(const std::string& session, const std::string& map) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = sessions_.find(session);
+  return it != sessions_.end() && it->second->map->name == map;
+}
+
+void Sessions::report_rejected(const std::string& session, const std::string& message) {
+  std::string map = session;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    counters_.add(&ServerStats::frames_received);
+    counters_.add(&ServerStats::frames_rejected);
+    const auto it = sessions_.find(session);
+    if (it != sessions_.end()) {
+      map = it->second->map->name;
+      std::lock_guard<std::mutex> qlock(it->second->mutex);
+      ++it->second->received;
+      ++it->second->dropped;
+      it->second->last_drop_reason = message;
+    }
+  }
+  replies_.result(session.c_str(), 0, map, message);
+}
+
+void Sessions::set_pose_listener(std::function<void(const Server::TrackedPose&)> listener) {
+  std::lock_guard<std::mutex> lock(listener_mutex_);
+  pose_listener_ = std::move(listener);
 }
 
 }  // namespace fslam::server

@@ -57,6 +57,14 @@ class Sessions {
   std::size_t count() const;
   std::vector<SessionReport> reports() const;
 
+  // In-process sessions (Server::open_session and friends, for the ROS 2 bridge).
+  // True when `session` is open and streams into `map`.
+  bool streams_into(const std::string& session, const std::string& map) const;
+  // A frame its source could not build: counted and reported as a refused fslam/frames sample.
+  void report_rejected(const std::string& session, const std::string& message);
+  // Called on a session's tracking thread after each pose it publishes; empty: none.
+  void set_pose_listener(std::function<void(const Server::TrackedPose&)> listener);
+
  private:
   struct QueuedFrame;
   struct PreparedFrame;
@@ -86,6 +94,8 @@ class Sessions {
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, std::unique_ptr<Session>> sessions_;
   std::vector<std::thread> closers_;  // sessions being drained after a close
+  mutable std::mutex listener_mutex_;
+  std::function<void(const Server::TrackedPose&)> pose_listener_;
 };
 
 }  // namespace fslam::server

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "fslam/core/geometry/rgbd_frame.hpp"
-#include "fslam/server/frame_codec.hpp"
+#include "fslam/server/wire.hpp"
 #include "fuzz_support.hpp"
 
 namespace {

@@ -25,6 +25,7 @@
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 #include "fslam/proto/types.h"
 #include "fslam/server/grounding.hpp"
+#include "fslam/server/ros2_config.hpp"
 
 namespace fslam::server {
 
@@ -98,6 +99,7 @@ struct ServerConfig {
   core::PipelineConfig pipeline = realtime_pipeline();
   DatasetSettings dataset;
   ComputeSettings compute;
+  Ros2Config ros2;  // the ROS 2 bridge (ros2_bridge.hpp); off by default
   bool is_valid(std::string* why = nullptr) const;
   // The prefix of the instance's own topics (frames, poses, session, requests, results, status):
   // <prefix>/<instance> with '-' as '_' (Cyclone refuses '-' in topic names; pod names have it).
@@ -135,6 +137,23 @@ class Server {
   // Where lifecycle messages go (map loaded / saved, failures); default: nowhere.
   void set_log(std::function<void(const std::string&)> log);
 
+  // ---- In-process sessions (the ROS 2 bridge, ros2_bridge.hpp): fed without fslam/frames ----
+  struct TrackedPose {
+    std::string session;
+    std::uint64_t frame_id = 0;
+    Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+    bool keyframe = false;
+  };
+  // Opens a session as a fslam/session SESSION_OPEN would; false with `why` when refused.
+  bool open_session(const std::string& session, const std::string& map, bool live, std::string* why);
+  // A frame for its session through the path a fslam/frames sample takes (checks, policy, queue).
+  void submit_frame(const fslam_proto_Frame& frame);
+  // A frame that could not be built from its messages: counted and reported as a rejected
+  // fslam/frames sample is (session status, fslam/results).
+  void report_rejected(const std::string& session, const std::string& message);
+  // Called on a session's tracking thread after each pose it publishes; empty: none.
+  void set_pose_listener(std::function<void(const TrackedPose&)> listener);
+
  private:
   void ingest();
   void publish_status();
@@ -157,6 +176,7 @@ class Server {
   std::unique_ptr<Replies> replies_;     // from activate on, with
   std::unique_ptr<Sessions> sessions_;   //   the sessions
   std::unique_ptr<Queries> queries_;     //   and the queries
+  std::function<void(const TrackedPose&)> pose_listener_;  // handed to each activation's sessions
 };
 
 // Prints the effective configuration, then runs a server until SIGINT or SIGTERM, reporting on
