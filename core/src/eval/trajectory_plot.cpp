@@ -175,29 +175,11 @@ void draw_scale_bar(cv::Mat& img, const View& view) {
   text(img, label, {x0 + length_px / 2 - size.width / 2, y - 9}, 0.45);
 }
 
-}  // namespace
-
-bool validate(const TrajectoryPlotConfig& config, std::string* why) {
-  if (config.panel_size < 300 || config.panel_size > 4000)
-    return fail(why, "trajectory plot panel_size must be 300..4000 pixels, got " +
-                         std::to_string(config.panel_size));
-  return true;
-}
-
-bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
-                            const TrajectoryPlotConfig& config, cv::Mat* rgb, std::string* why) {
-  if (!validate(config, why)) return false;
-  if (ate.pairs == 0 || ate.est_aligned.size() != ate.pairs || ate.errors.size() != ate.pairs ||
-      ate.gt_indices.size() != ate.pairs)
-    return fail(why, "trajectory plot: the ATE result holds no aligned poses");
-  for (std::size_t i : ate.gt_indices)
-    if (i >= gt.size())
-      return fail(why, "trajectory plot: the ATE result was computed on another ground truth");
-
-  // Principal axes of the ground-truth positions: axis 1 the largest spread, axis 3 the smallest
-  // (the normal of a mostly planar path). Axes 1 and 3 point along their largest world component,
-  // so world "up" stays up in the side view when it is axis 3; axis 2 = 3 x 1 keeps the frame
-  // right-handed, so neither view is mirrored.
+// Principal axes of the ground-truth positions: axis 1 the largest spread, axis 3 the smallest
+// (the normal of a mostly planar path). Axes 1 and 3 point along their largest world component,
+// so world "up" stays up in the side view when it is axis 3; axis 2 = 3 x 1 keeps the frame
+// right-handed, so neither view is mirrored. Rows: axis 1, 2, 3 in world coordinates.
+Eigen::Matrix3d principal_axes(const Trajectory& gt, Eigen::Vector3d* centroid_out) {
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const auto& pose : gt) centroid += pose.T_world_camera.translation();
   centroid /= static_cast<double>(gt.size());
@@ -214,42 +196,54 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
   };
   const Eigen::Vector3d axis1 = dominant_positive(eigen.eigenvectors().col(2));
   const Eigen::Vector3d axis3 = dominant_positive(eigen.eigenvectors().col(0));
-  Eigen::Matrix3d axes;  // rows: axis 1, 2, 3 in world coordinates
+  Eigen::Matrix3d axes;
   axes.row(0) = axis1.transpose();
   axes.row(1) = axis3.cross(axis1).transpose();
   axes.row(2) = axis3.transpose();
+  *centroid_out = centroid;
+  return axes;
+}
 
-  std::vector<Eigen::Vector3d> g(gt.size()), e(ate.pairs);
-  for (std::size_t i = 0; i < gt.size(); ++i)
-    g[i] = axes * (gt[i].T_world_camera.translation() - centroid);
-  for (std::size_t i = 0; i < ate.pairs; ++i) e[i] = axes * (ate.est_aligned[i] - centroid);
-  Eigen::Vector3d lo = g.front(), hi = g.front();
-  for (const auto* set : {&g, &e})
+// The plot's layout, pixels.
+struct Layout {
+  int P;  // panel size
+  int title_h = 64, legend_h = 64, bar_w = 150;
+  int margin_l = 78, margin_r = 22, margin_t = 40, margin_b = 62;
+  int plot_w() const { return P - margin_l - margin_r; }
+  int plot_h() const { return P - margin_t - margin_b; }
+};
+
+// What the drawing steps share: the ground truth and aligned estimate in principal-axis
+// coordinates, their time stamps, the colour scale and unit.
+struct PlotData {
+  std::vector<Eigen::Vector3d> g, e;  // [gt.size()], [ate.pairs]
+  std::vector<double> gt_stamps, pair_stamps;
+  double colour_max = 0.0;            // metres at the top of the colour scale
+  ErrorUnit unit{};
+  std::vector<cv::Vec3b> lut;
+};
+
+// The top and side views over the same metres per pixel, centred on the points' bounding box.
+void make_views(const Layout& layout, const PlotData& data, View views[2]) {
+  Eigen::Vector3d lo = data.g.front(), hi = data.g.front();
+  for (const auto* set : {&data.g, &data.e})
     for (const auto& p : *set) {
       lo = lo.cwiseMin(p);
       hi = hi.cwiseMax(p);
     }
   const Eigen::Vector3d extent = (hi - lo).cwiseMax(Eigen::Vector3d::Constant(1e-3));
-
-  // Layout, pixels.
-  const int P = config.panel_size;
-  const int title_h = 64, legend_h = 64, bar_w = 150;
-  const int margin_l = 78, margin_r = 22, margin_t = 40, margin_b = 62;
-  cv::Mat img(title_h + P + legend_h, 2 * P + bar_w, CV_8UC3, kWhite);
-  const int plot_w = P - margin_l - margin_r, plot_h = P - margin_t - margin_b;
-  View views[2];
+  const int P = layout.P, plot_w = layout.plot_w(), plot_h = layout.plot_h();
   const double px_per_m =
       0.92 * std::min({plot_w / extent.x(), plot_h / extent.y(), plot_h / extent.z()});
   for (int k = 0; k < 2; ++k) {
-    views[k].area = cv::Rect(k * P + margin_l, title_h + margin_t, plot_w, plot_h);
+    views[k].area = cv::Rect(k * P + layout.margin_l, layout.title_h + layout.margin_t, plot_w, plot_h);
     views[k].px_per_m = px_per_m;
     views[k].centre_u = 0.5 * (lo.x() + hi.x());
     views[k].centre_v = k == 0 ? 0.5 * (lo.y() + hi.y()) : 0.5 * (lo.z() + hi.z());
   }
+}
 
-  // Title.
-  const double colour_max = std::max(ate.max, kMinColourRange);
-  const ErrorUnit unit = error_unit(colour_max);
+void draw_title(cv::Mat& img, const TrajectoryPlotConfig& config, const AteResult& ate, const ErrorUnit& unit) {
   std::string title = config.title.empty() ? std::string() : config.title + "  -  ";
   // Below a nanometre the error is floating-point noise: say 0.
   const std::string rmse_text = ate.rmse < 1e-9 ? "0" : significant(ate.rmse * unit.per_metre, 4);
@@ -260,61 +254,50 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
     title_scale -= 0.05;
   text(img, title, {img.cols / 2 - text_size(title, title_scale, 2).width / 2, 42}, title_scale,
        kInk, 2);
+}
 
-  const char* names[2] = {"top view (axes 1-2)", "side view (axes 1-3)"};
-  const char* v_labels[2] = {"axis 2 [m]", "axis 3 [m]"};
-  for (int k = 0; k < 2; ++k) {
-    draw_axes(img, views[k], "axis 1 [m]", v_labels[k]);
-    const std::string name = names[k];
-    text(img, name,
-         {views[k].area.x + views[k].area.width / 2 - text_size(name, 0.6).width / 2,
-          views[k].area.y - 14},
-         0.6);
-  }
+// One view's paths: the ground truth in grey, the estimate coloured by its ATE error (dots too
+// when sparse), the start circled, then the frame and scale bar.
+void draw_paths(cv::Mat& img, const View& view, int k, const PlotData& data, const AteResult& ate,
+                double gt_gap, double pair_gap, bool sparse) {
+  const int b = k == 0 ? 1 : 2;  // second plane coordinate
+  cv::Mat canvas = img(view.area);  // drawing into the sub-image clips to the plot rectangle
+  const cv::Point2d origin(view.area.x, view.area.y);
+  auto px = [&](const Eigen::Vector3d& p) { return view.to_px(p.x(), p(b)) - origin; };
+  const auto& g = data.g;
+  const auto& e = data.e;
+  for (std::size_t i = 1; i < g.size(); ++i)
+    if (data.gt_stamps[i] - data.gt_stamps[i - 1] <= gt_gap)
+      cv::line(canvas, sub(px(g[i - 1])), sub(px(g[i])), kGroundTruth, 2, cv::LINE_AA, kShift);
+  for (std::size_t i = 1; i < e.size(); ++i)
+    if (data.pair_stamps[i] - data.pair_stamps[i - 1] <= pair_gap)
+      cv::line(canvas, sub(px(e[i - 1])), sub(px(e[i])),
+               colour_of(data.lut, 0.5 * (ate.errors[i - 1] + ate.errors[i]) / data.colour_max), 2,
+               cv::LINE_AA, kShift);
+  if (sparse)
+    for (std::size_t i = 0; i < e.size(); ++i)
+      cv::circle(canvas, sub(px(e[i])), static_cast<int>(3.5 * kSub),
+                 colour_of(data.lut, ate.errors[i] / data.colour_max), cv::FILLED, cv::LINE_AA, kShift);
+  cv::circle(canvas, sub(px(g.front())), static_cast<int>(6 * kSub), kInk, 2, cv::LINE_AA,
+             kShift);
+  cv::rectangle(img, view.area, kFrame, 1);
+  draw_scale_bar(img, view);
+}
 
-  const auto lut = colour_lut();
-  std::vector<double> gt_stamps(gt.size()), pair_stamps(ate.pairs);
-  for (std::size_t i = 0; i < gt.size(); ++i) gt_stamps[i] = gt[i].timestamp;
-  for (std::size_t i = 0; i < ate.pairs; ++i) pair_stamps[i] = gt[ate.gt_indices[i]].timestamp;
-  const double gt_gap = gap_threshold(gt_stamps), pair_gap = gap_threshold(pair_stamps);
-  const bool sparse = ate.pairs < 400;
-
-  for (int k = 0; k < 2; ++k) {
-    const View& view = views[k];
-    const int b = k == 0 ? 1 : 2;  // second plane coordinate
-    cv::Mat canvas = img(view.area);  // drawing into the sub-image clips to the plot rectangle
-    const cv::Point2d origin(view.area.x, view.area.y);
-    auto px = [&](const Eigen::Vector3d& p) { return view.to_px(p.x(), p(b)) - origin; };
-    for (std::size_t i = 1; i < g.size(); ++i)
-      if (gt_stamps[i] - gt_stamps[i - 1] <= gt_gap)
-        cv::line(canvas, sub(px(g[i - 1])), sub(px(g[i])), kGroundTruth, 2, cv::LINE_AA, kShift);
-    for (std::size_t i = 1; i < e.size(); ++i)
-      if (pair_stamps[i] - pair_stamps[i - 1] <= pair_gap)
-        cv::line(canvas, sub(px(e[i - 1])), sub(px(e[i])),
-                 colour_of(lut, 0.5 * (ate.errors[i - 1] + ate.errors[i]) / colour_max), 2,
-                 cv::LINE_AA, kShift);
-    if (sparse)
-      for (std::size_t i = 0; i < e.size(); ++i)
-        cv::circle(canvas, sub(px(e[i])), static_cast<int>(3.5 * kSub),
-                   colour_of(lut, ate.errors[i] / colour_max), cv::FILLED, cv::LINE_AA, kShift);
-    cv::circle(canvas, sub(px(g.front())), static_cast<int>(6 * kSub), kInk, 2, cv::LINE_AA,
-               kShift);
-    cv::rectangle(img, view.area, kFrame, 1);
-    draw_scale_bar(img, view);
-  }
-
-  // Colour bar with ticks in the chosen error unit.
-  const int bar_x = 2 * P + 28, bar_top = title_h + margin_t + 40, bar_h = plot_h - 60;
+// Colour bar with ticks in the chosen error unit.
+void draw_colour_bar(cv::Mat& img, const Layout& layout, const PlotData& data, const AteResult& ate) {
+  const int bar_x = 2 * layout.P + 28, bar_top = layout.title_h + layout.margin_t + 40;
+  const int bar_h = layout.plot_h() - 60;
   const std::string bar_title = "ATE error";
-  const std::string bar_unit = std::string("[") + unit.name + "]";
+  const std::string bar_unit = std::string("[") + data.unit.name + "]";
   text(img, bar_title, {bar_x - 8, bar_top - 30}, 0.5);
   text(img, bar_unit, {bar_x - 8, bar_top - 10}, 0.5);
   for (int y = 0; y < bar_h; ++y) {
-    const cv::Scalar c = colour_of(lut, 1.0 - static_cast<double>(y) / (bar_h - 1));
+    const cv::Scalar c = colour_of(data.lut, 1.0 - static_cast<double>(y) / (bar_h - 1));
     cv::line(img, {bar_x, bar_top + y}, {bar_x + 22, bar_top + y}, c, 1);
   }
   cv::rectangle(img, {bar_x, bar_top}, {bar_x + 22, bar_top + bar_h - 1}, kFrame, 1);
-  const double max_display = colour_max * unit.per_metre;
+  const double max_display = data.colour_max * data.unit.per_metre;
   const double tick = nice_step(max_display / 5.0);
   for (double t = 0.0; t <= max_display + 1e-9 * max_display; t += tick) {
     const int y = bar_top + bar_h - 1 - static_cast<int>(std::lround(t / max_display * (bar_h - 1)));
@@ -322,19 +305,22 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
     text(img, fixed(t, tick_decimals(tick)), {bar_x + 32, y + 5}, 0.42);
   }
   const std::string max_label =
-      "max " + (ate.max < 1e-9 ? std::string("0") : significant(ate.max * unit.per_metre, 3));
+      "max " + (ate.max < 1e-9 ? std::string("0") : significant(ate.max * data.unit.per_metre, 3));
   text(img, max_label, {bar_x - 8, bar_top + bar_h + 24}, 0.42);
+}
 
-  // Legend and axis definitions.
-  const int legend_y = title_h + P + 18;
-  int x = margin_l;
+// Legend and axis definitions.
+void draw_legend(cv::Mat& img, const Layout& layout, const PlotData& data, const AteResult& ate,
+                 const Eigen::Matrix3d& axes) {
+  const int legend_y = layout.title_h + layout.P + 18;
+  int x = layout.margin_l;
   cv::line(img, {x, legend_y - 5}, {x + 36, legend_y - 5}, kGroundTruth, 2, cv::LINE_AA);
   x += 44;
   text(img, "ground truth", {x, legend_y}, 0.5);
   x += text_size("ground truth", 0.5).width + 30;
   for (int s = 0; s < 36; ++s)
     cv::line(img, {x + s, legend_y - 5}, {x + s + 1, legend_y - 5},
-             colour_of(lut, s / 35.0), 3, cv::LINE_AA);
+             colour_of(data.lut, s / 35.0), 3, cv::LINE_AA);
   x += 44;
   const std::string est_label = std::string("estimate, aligned with ") + to_string(ate.alignment) +
                                 (ate.alignment == Alignment::kSim3
@@ -354,8 +340,68 @@ bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
   const std::string axes_line = "axes: principal axes of the ground-truth positions in world "
                                 "coordinates (x, y, z), origin at their centroid:  " +
                                 axis_text(0) + ",  " + axis_text(1) + ",  " + axis_text(2);
-  text(img, axes_line, {margin_l, legend_y + 28}, 0.42, cv::Scalar(100, 100, 100));
+  text(img, axes_line, {layout.margin_l, legend_y + 28}, 0.42, cv::Scalar(100, 100, 100));
+}
 
+}  // namespace
+
+bool validate(const TrajectoryPlotConfig& config, std::string* why) {
+  if (config.panel_size < 300 || config.panel_size > 4000)
+    return fail(why, "trajectory plot panel_size must be 300..4000 pixels, got " +
+                         std::to_string(config.panel_size));
+  return true;
+}
+
+bool render_trajectory_plot(const Trajectory& gt, const AteResult& ate,
+                            const TrajectoryPlotConfig& config, cv::Mat* rgb, std::string* why) {
+  if (!validate(config, why)) return false;
+  if (ate.pairs == 0 || ate.est_aligned.size() != ate.pairs || ate.errors.size() != ate.pairs ||
+      ate.gt_indices.size() != ate.pairs)
+    return fail(why, "trajectory plot: the ATE result holds no aligned poses");
+  for (std::size_t i : ate.gt_indices)
+    if (i >= gt.size())
+      return fail(why, "trajectory plot: the ATE result was computed on another ground truth");
+
+  Eigen::Vector3d centroid;
+  const Eigen::Matrix3d axes = principal_axes(gt, &centroid);
+  PlotData data;
+  data.g.resize(gt.size());
+  data.e.resize(ate.pairs);
+  for (std::size_t i = 0; i < gt.size(); ++i)
+    data.g[i] = axes * (gt[i].T_world_camera.translation() - centroid);
+  for (std::size_t i = 0; i < ate.pairs; ++i) data.e[i] = axes * (ate.est_aligned[i] - centroid);
+
+  const Layout layout{config.panel_size};
+  cv::Mat img(layout.title_h + layout.P + layout.legend_h, 2 * layout.P + layout.bar_w, CV_8UC3, kWhite);
+  View views[2];
+  make_views(layout, data, views);
+
+  data.colour_max = std::max(ate.max, kMinColourRange);
+  data.unit = error_unit(data.colour_max);
+  draw_title(img, config, ate, data.unit);
+
+  const char* names[2] = {"top view (axes 1-2)", "side view (axes 1-3)"};
+  const char* v_labels[2] = {"axis 2 [m]", "axis 3 [m]"};
+  for (int k = 0; k < 2; ++k) {
+    draw_axes(img, views[k], "axis 1 [m]", v_labels[k]);
+    const std::string name = names[k];
+    text(img, name,
+         {views[k].area.x + views[k].area.width / 2 - text_size(name, 0.6).width / 2,
+          views[k].area.y - 14},
+         0.6);
+  }
+
+  data.lut = colour_lut();
+  data.gt_stamps.resize(gt.size());
+  data.pair_stamps.resize(ate.pairs);
+  for (std::size_t i = 0; i < gt.size(); ++i) data.gt_stamps[i] = gt[i].timestamp;
+  for (std::size_t i = 0; i < ate.pairs; ++i) data.pair_stamps[i] = gt[ate.gt_indices[i]].timestamp;
+  const double gt_gap = gap_threshold(data.gt_stamps), pair_gap = gap_threshold(data.pair_stamps);
+  const bool sparse = ate.pairs < 400;
+  for (int k = 0; k < 2; ++k) draw_paths(img, views[k], k, data, ate, gt_gap, pair_gap, sparse);
+
+  draw_colour_bar(img, layout, data, ate);
+  draw_legend(img, layout, data, ate, axes);
   cv::cvtColor(img, *rgb, cv::COLOR_BGR2RGB);
   return true;
 }

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/tracking/keyframe_policy.hpp"
 
 namespace fslam::core {
 namespace {
@@ -407,15 +408,12 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   keyframes_.push_back(std::move(kf));
   s.insert_ms = ms_since(t0);
 
+  // A mapping keyframe prunes with the mapping percentile (keyframe_policy.hpp).
   const Eigen::Isometry3d& T = keyframe.T_world_camera;
-  if (!last_mapping_keyframe_) {
-    s.mapping_keyframe = true;
-  } else {
-    const Eigen::Isometry3d delta = last_mapping_keyframe_->inverse() * T;
-    const double angle_deg = Eigen::AngleAxisd(delta.rotation()).angle() * 180.0 / M_PI;
-    s.mapping_keyframe = delta.translation().norm() >= config_.mapping_keyframe_translation ||
-                         angle_deg >= config_.mapping_keyframe_rotation_deg;
-  }
+  s.mapping_keyframe = !last_mapping_keyframe_ ||
+                       is_mapping_keyframe(pose_motion(*last_mapping_keyframe_, T),
+                                           config_.mapping_keyframe_translation,
+                                           config_.mapping_keyframe_rotation_deg);
   if (s.mapping_keyframe) last_mapping_keyframe_ = T;
 
   t0 = std::chrono::steady_clock::now();

@@ -230,18 +230,10 @@ bool is_structural(SynthClass c) {
 
 PinholeCamera synth_default_camera() { return {525.0, 525.0, 319.5, 239.5, 640, 480}; }
 
-SyntheticRoom make_room(std::uint64_t seed) {
-  Rng rng(synth::stream_seed(seed, synth::Stream::room));
-  SyntheticRoom room;
-  const double W = rng.uniform(4.2, 4.7);  // x extent
-  const double D = rng.uniform(3.9, 4.3);  // y extent: the camera looks along +y
-  const double H = rng.uniform(2.5, 2.8);
-  room.size = {W, D, H};
-  room.camera_zone = Eigen::AlignedBox3d(Vector3d(0.5 * W - 0.45, 0.85, 1.35),
-                                         Vector3d(0.5 * W + 0.45, 1.35, 1.6));
-  RoomBuilder builder(&room);
+namespace {
 
-  // Structure: four walls, floor, ceiling, each its own instance and material.
+// Structure: four walls, floor, ceiling, each its own instance and material.
+void add_structure(Rng& rng, double W, double D, double H, RoomBuilder& builder) {
   int wall_style = rng.below(4);
   const char* wall_names[4] = {"wall_south", "wall_north", "wall_west", "wall_east"};
   const Vector3d wall_origins[4] = {{0, 0, 0}, {0, D, 0}, {0, 0, 0}, {W, 0, 0}};
@@ -267,8 +259,16 @@ SyntheticRoom make_room(std::uint64_t seed) {
     ceiling.colour_c = 0.6 * b;
     builder.add_face(SynthClass::ceiling, "ceiling", {0, 0, H}, -Vector3d::UnitZ(), ceiling);
   }
+}
 
-  // Table in the middle of the far half, with a rug under it and things on it.
+// Where the table stands: the chairs and the things on it are placed relative to it.
+struct TablePlacement {
+  double x, y, l, w, h;
+  Isometry3d T_world_table;
+};
+
+// Table in the middle of the far half, with a rug under it.
+TablePlacement add_table(Rng& rng, double W, double D, RoomBuilder& builder) {
   const double table_x = 0.5 * W + rng.uniform(-0.2, 0.2);
   const double table_y = D * rng.uniform(0.56, 0.6);
   const double table_yaw = rng.uniform(-0.12, 0.12);
@@ -294,7 +294,13 @@ SyntheticRoom make_room(std::uint64_t seed) {
     builder.add(SynthClass::rug, "rug", T_world_table,
                 {box({0, 0, 0.005}, {0.5 * table_l + 0.65, 0.5 * table_w + 0.5, 0.005})}, rug);
   }
-  // Two chairs behind the table, facing the camera; backrest on the chair's local +y.
+  return {table_x, table_y, table_l, table_w, table_h, T_world_table};
+}
+
+// Two chairs behind the table, facing the camera; backrest on the chair's local +y.
+void add_chairs(Rng& rng, const TablePlacement& table, RoomBuilder& builder) {
+  const double table_l = table.l, table_w = table.w;
+  const Isometry3d& T_world_table = table.T_world_table;
   for (int i = 0; i < 2; ++i) {
     const double seat_h = rng.uniform(0.44, 0.48);
     const double back_h = rng.uniform(0.4, 0.5);
@@ -311,43 +317,48 @@ SyntheticRoom make_room(std::uint64_t seed) {
                 rng.uniform() < 0.5 ? wood(rng, 0.08)
                                     : painted(rng, SynthPattern::noise, rng.uniform(0.05, 0.08)));
   }
-  // Table top: four slots in shuffled order for cup, vase, book and ball.
-  {
-    Vector3d slots[4];
-    for (int i = 0; i < 4; ++i)
-      slots[i] = {(i & 1 ? 0.27 : -0.27) * table_l + rng.uniform(-0.06, 0.06),
-                  (i & 2 ? 0.22 : -0.22) * table_w + rng.uniform(-0.04, 0.04), table_h};
-    for (int i = 3; i > 0; --i) std::swap(slots[i], slots[rng.below(i + 1)]);
-    auto on_table = [&](int slot, double yaw) { return T_world_table * pose(slots[slot], yaw); };
+}
 
-    const double cup_r = rng.uniform(0.04, 0.05);
-    const double cup_h = rng.uniform(0.09, 0.12);
-    SynthMaterial cup = painted(rng, SynthPattern::stripes, rng.uniform(0.025, 0.035));
-    builder.add(SynthClass::cup, "cup", on_table(0, rng.uniform(0.0, 2.0 * kPi)),
-                {cylinder({0, 0, 0}, cup_r, cup_h),
-                 box({cup_r + 0.012, 0, 0.55 * cup_h}, {0.014, 0.007, 0.3 * cup_h})},
-                cup);
-    const double vase_r = rng.uniform(0.07, 0.09);
-    SynthMaterial vase = painted(rng, SynthPattern::stripes, rng.uniform(0.035, 0.05));
-    vase.axis = Vector3d(1.0, 0.0, 1.5).normalized();
-    builder.add(SynthClass::vase, "vase", on_table(1, 0.0),
-                {sphere({0, 0, vase_r}, vase_r),
-                 cylinder({0, 0, 1.6 * vase_r}, 0.4 * vase_r, rng.uniform(0.12, 0.18))},
-                vase);
-    const Vector3d book_half(rng.uniform(0.08, 0.11), rng.uniform(0.11, 0.15),
-                             rng.uniform(0.015, 0.025));
-    SynthMaterial book = painted(rng, SynthPattern::checker, rng.uniform(0.04, 0.06));
-    builder.add(SynthClass::book, "book_1", on_table(2, rng.uniform(-0.6, 0.6)),
-                {box({0, 0, book_half.z()}, book_half),
-                 box({0.01, 0.005, 2.0 * book_half.z() + 0.7 * book_half.z()},
-                     {0.9 * book_half.x(), 0.9 * book_half.y(), 0.7 * book_half.z()}, 0.25)},
-                book);
-    const double ball_r = rng.uniform(0.07, 0.09);
-    builder.add(SynthClass::ball, "ball_1", on_table(3, 0.0), {sphere({0, 0, ball_r}, ball_r)},
-                painted(rng, SynthPattern::checker, rng.uniform(0.05, 0.07)));
-  }
+// Table top: four slots in shuffled order for cup, vase, book and ball.
+void add_table_top(Rng& rng, const TablePlacement& table, RoomBuilder& builder) {
+  const double table_l = table.l, table_w = table.w, table_h = table.h;
+  const Isometry3d& T_world_table = table.T_world_table;
+  Vector3d slots[4];
+  for (int i = 0; i < 4; ++i)
+    slots[i] = {(i & 1 ? 0.27 : -0.27) * table_l + rng.uniform(-0.06, 0.06),
+                (i & 2 ? 0.22 : -0.22) * table_w + rng.uniform(-0.04, 0.04), table_h};
+  for (int i = 3; i > 0; --i) std::swap(slots[i], slots[rng.below(i + 1)]);
+  auto on_table = [&](int slot, double yaw) { return T_world_table * pose(slots[slot], yaw); };
 
-  // Along the far wall (y = D): a cabinet on the west side, a shelf on the east side.
+  const double cup_r = rng.uniform(0.04, 0.05);
+  const double cup_h = rng.uniform(0.09, 0.12);
+  SynthMaterial cup = painted(rng, SynthPattern::stripes, rng.uniform(0.025, 0.035));
+  builder.add(SynthClass::cup, "cup", on_table(0, rng.uniform(0.0, 2.0 * kPi)),
+              {cylinder({0, 0, 0}, cup_r, cup_h),
+               box({cup_r + 0.012, 0, 0.55 * cup_h}, {0.014, 0.007, 0.3 * cup_h})},
+              cup);
+  const double vase_r = rng.uniform(0.07, 0.09);
+  SynthMaterial vase = painted(rng, SynthPattern::stripes, rng.uniform(0.035, 0.05));
+  vase.axis = Vector3d(1.0, 0.0, 1.5).normalized();
+  builder.add(SynthClass::vase, "vase", on_table(1, 0.0),
+              {sphere({0, 0, vase_r}, vase_r),
+               cylinder({0, 0, 1.6 * vase_r}, 0.4 * vase_r, rng.uniform(0.12, 0.18))},
+              vase);
+  const Vector3d book_half(rng.uniform(0.08, 0.11), rng.uniform(0.11, 0.15),
+                           rng.uniform(0.015, 0.025));
+  SynthMaterial book = painted(rng, SynthPattern::checker, rng.uniform(0.04, 0.06));
+  builder.add(SynthClass::book, "book_1", on_table(2, rng.uniform(-0.6, 0.6)),
+              {box({0, 0, book_half.z()}, book_half),
+               box({0.01, 0.005, 2.0 * book_half.z() + 0.7 * book_half.z()},
+                   {0.9 * book_half.x(), 0.9 * book_half.y(), 0.7 * book_half.z()}, 0.25)},
+              book);
+  const double ball_r = rng.uniform(0.07, 0.09);
+  builder.add(SynthClass::ball, "ball_1", on_table(3, 0.0), {sphere({0, 0, ball_r}, ball_r)},
+              painted(rng, SynthPattern::checker, rng.uniform(0.05, 0.07)));
+}
+
+// Along the far wall (y = D): a cabinet on the west side, a shelf on the east side.
+void add_far_wall(Rng& rng, double W, double D, RoomBuilder& builder) {
   {
     const double w = rng.uniform(0.8, 1.0);
     const double h = rng.uniform(0.8, 1.0);
@@ -398,7 +409,10 @@ SyntheticRoom make_room(std::uint64_t seed) {
     book.axis = Vector3d::UnitX();
     builder.add(SynthClass::book, "book_2", T_world_shelf, books, book);
   }
-  // Corners: a plant (north-west) and a floor lamp (north-east).
+}
+
+// Corners: a plant (north-west) and a floor lamp (north-east).
+void add_corners(Rng& rng, double W, double D, RoomBuilder& builder) {
   {
     const double pot_r = rng.uniform(0.15, 0.19);
     const double pot_h = rng.uniform(0.35, 0.45);
@@ -423,7 +437,10 @@ SyntheticRoom make_room(std::uint64_t seed) {
     SynthMaterial lamp = painted(rng, SynthPattern::stripes, rng.uniform(0.05, 0.07));
     builder.add(SynthClass::lamp, "lamp", pose({W - 0.3, D - 0.3, 0.0}), parts, lamp);
   }
-  // West wall: sofa; east wall: a storage box.
+}
+
+// West wall: sofa; east wall: a storage box.
+void add_side_walls(Rng& rng, double W, double D, RoomBuilder& builder) {
   {
     const double length = rng.uniform(1.6, 1.9);
     const double y_end = D - rng.uniform(0.75, 0.9);
@@ -455,24 +472,46 @@ SyntheticRoom make_room(std::uint64_t seed) {
         T_world_box * pose({rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), 2.0 * half.z()}),
         {sphere({0, 0, r}, r)}, painted(rng, SynthPattern::stripes, 0.07));
   }
-  // Pictures: thin boards on the walls, their face on local -y.
-  {
-    auto picture = [&](const std::string& name, const Vector3d& at, double yaw) {
-      const double w = rng.uniform(0.45, 0.7);
-      const double h = rng.uniform(0.35, 0.5);
-      auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
-      SynthMaterial paint =
-          material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
-      builder.add(SynthClass::picture, name, pose(at, yaw),
-                  {box({0, -0.012, 0}, {0.5 * w, 0.012, 0.5 * h})}, paint);
-    };
-    picture("picture_1", {rng.uniform(1.1, 1.5), D, rng.uniform(1.45, 1.6)}, 0.0);
-    picture("picture_2", {0.0, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, 0.5 * kPi);
-    picture("picture_3", {W, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, -0.5 * kPi);
-  }
+}
 
-  room.light_position = {table_x, 0.5 * (table_y + 1.1), H - 0.25};
-  room.look_at = {table_x, table_y + 0.4, 0.9};
+// Pictures: thin boards on the walls, their face on local -y.
+void add_pictures(Rng& rng, double W, double D, RoomBuilder& builder) {
+  auto picture = [&](const std::string& name, const Vector3d& at, double yaw) {
+    const double w = rng.uniform(0.45, 0.7);
+    const double h = rng.uniform(0.35, 0.5);
+    auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
+    SynthMaterial paint =
+        material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
+    builder.add(SynthClass::picture, name, pose(at, yaw),
+                {box({0, -0.012, 0}, {0.5 * w, 0.012, 0.5 * h})}, paint);
+  };
+  picture("picture_1", {rng.uniform(1.1, 1.5), D, rng.uniform(1.45, 1.6)}, 0.0);
+  picture("picture_2", {0.0, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, 0.5 * kPi);
+  picture("picture_3", {W, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, -0.5 * kPi);
+}
+
+}  // namespace
+
+SyntheticRoom make_room(std::uint64_t seed) {
+  Rng rng(synth::stream_seed(seed, synth::Stream::room));
+  SyntheticRoom room;
+  const double W = rng.uniform(4.2, 4.7);  // x extent
+  const double D = rng.uniform(3.9, 4.3);  // y extent: the camera looks along +y
+  const double H = rng.uniform(2.5, 2.8);
+  room.size = {W, D, H};
+  room.camera_zone = Eigen::AlignedBox3d(Vector3d(0.5 * W - 0.45, 0.85, 1.35),
+                                         Vector3d(0.5 * W + 0.45, 1.35, 1.6));
+  RoomBuilder builder(&room);
+  add_structure(rng, W, D, H, builder);
+  const TablePlacement table = add_table(rng, W, D, builder);
+  add_chairs(rng, table, builder);
+  add_table_top(rng, table, builder);
+  add_far_wall(rng, W, D, builder);
+  add_corners(rng, W, D, builder);
+  add_side_walls(rng, W, D, builder);
+  add_pictures(rng, W, D, builder);
+  room.light_position = {table.x, 0.5 * (table.y + 1.1), H - 0.25};
+  room.look_at = {table.x, table.y + 0.4, 0.9};
   return room;
 }
 

@@ -17,20 +17,12 @@ double now_ms() {
   return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
 }
 
-constexpr double kDegToRad = M_PI / 180.0;
 // Re-registration after a loss searches wider: the prediction may be off by more than one frame.
 constexpr float kRecoveryDistanceFactor = 2.0f;
 // target = gaussians: keyframes kept for the bridge while the mapper has not mapped them.
 constexpr std::size_t kMaxUnmappedKeyframes = 32;
 
 }  // namespace
-
-bool KeyframeConfig::is_valid(std::string* why) const {
-  if (!(translation > 0.0)) return fail(why, "keyframe.translation must be > 0 m");
-  if (!(rotation_deg > 0.0)) return fail(why, "keyframe.rotation_deg must be > 0");
-  if (!(rms_residual > 0.0)) return fail(why, "keyframe.rms_residual must be > 0 m");
-  return true;
-}
 
 bool TrackingLossConfig::is_valid(std::string* why) const {
   if (!(min_inlier_ratio >= 0.0 && min_inlier_ratio <= 1.0))
@@ -92,13 +84,10 @@ GicpResult Tracker::register_frame(const GaussianPoints& source,
   return align(source, map_, T_init, config_.gicp, SerialReduction{});
 }
 
-// Eq. keyframe_crit: ||t_c - t_k|| > tau_t or angle(R_c R_k^T) > tau_r or sigma_gicp > tau_sigma.
+// Eq. keyframe_crit against the last keyframe (keyframe_policy.hpp).
 bool Tracker::is_keyframe(const Eigen::Isometry3d& T_world_camera, const GicpResult& gicp) const {
-  const Eigen::Isometry3d& T_k = keyframes_.back().T_world_camera;
-  const double dt = (T_world_camera.translation() - T_k.translation()).norm();
-  const double dr = rotation_angle(T_world_camera.linear() * T_k.linear().transpose());
-  return dt > config_.keyframe.translation || dr > config_.keyframe.rotation_deg * kDegToRad ||
-         gicp.rms_residual > config_.keyframe.rms_residual;
+  return core::is_keyframe(config_.keyframe, pose_motion(keyframes_.back().T_world_camera, T_world_camera),
+                           gicp.rms_residual);
 }
 
 bool Tracker::is_lost(const GicpResult& gicp) const {

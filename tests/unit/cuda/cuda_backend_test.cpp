@@ -45,5 +45,17 @@ TEST(CudaBackend, NoDeviceIsReportedNotFatal) {
   EXPECT_FALSE(why.empty());
 }
 
+// The rasteriser's own factory refuses a device that does not exist (its renders and gradients
+// are checked with every other backend's in tests/unit/server/rasterizer_backends_test.cpp).
+TEST(CudaBackend, RasterizerOnANonexistentDeviceIsAnError) {
+  std::string why;
+  EXPECT_FALSE(make_cuda_rasterizer(-1, &why));
+  EXPECT_FALSE(why.empty());
+  const int n = usable_device_count(&why);
+  why.clear();
+  EXPECT_FALSE(make_cuda_rasterizer(n + 3, &why));
+  EXPECT_FALSE(why.empty());
+}
+
 }  // namespace
 }  // namespace fslam::cuda

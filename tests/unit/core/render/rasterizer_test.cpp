@@ -1,5 +1,7 @@
-// The CPU rasteriser against a per-pixel reference, analytic cases of the camera-plane depth, and
-// every gradient against central finite differences in double precision.
+// The rasteriser's algorithm (core/render/rasterize_impl.hpp, the stages every backend runs)
+// against a per-pixel reference, analytic cases of the camera-plane depth, and every gradient
+// against central finite differences in double precision. The backends themselves (CPU, CUDA),
+// reached through the backend factory, are one suite: tests/unit/server/rasterizer_backends_test.cpp.
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -451,42 +453,6 @@ TEST(Rasterizer, ImportanceIsAbsoluteAlphaGradient) {
     EXPECT_GT(imp_rgb[i], 1e-4);
     EXPECT_EQ(imp_feat[i], 0.0);  // zero feature gradient: no feature importance
   }
-}
-
-TEST(Rasterizer, CpuBackendRendersAndRejectsBadInput) {
-  auto rasterizer = make_cpu_rasterizer();
-  GaussianMap map;
-  map.feature_dim = 2;
-  const float mean[3] = {0.f, 0.f, 2.f}, rot[4] = {1.f, 0.f, 0.f, 0.f};
-  const float ls[3] = {std::log(0.1f), std::log(0.1f), std::log(0.1f)};
-  const float sh[3] = {0.5f, 0.5f, 0.5f}, feat[2] = {1.f, -1.f};
-  map.push_back(mean, rot, ls, 2.0f, sh, feat);
-  RenderView view;
-  view.camera = PinholeCamera{50, 50, 31.5, 23.5, 64, 48};
-  RenderResult result;
-  std::string why;
-  ASSERT_TRUE(rasterizer->forward(map, view, RenderSettings{}, &result, &why)) << why;
-  EXPECT_EQ(result.colour.channels, 3);
-  EXPECT_EQ(result.features.channels, 2);
-  EXPECT_GT(result.alpha.at(0, 23, 31), 0.8f);
-  EXPECT_NEAR(result.features.at(0, 23, 31) / result.alpha.at(0, 23, 31), 1.0f, 1e-5f);
-  EXPECT_GT(result.stats.blend_steps, 0u);
-
-  RenderGradients rg;
-  rg.colour = PlanarImage(64, 48, 3, 1.0f);
-  GaussianGradients grads;
-  ASSERT_TRUE(rasterizer->backward(map, view, RenderSettings{}, result, rg, &grads, &why)) << why;
-  EXPECT_GT(grads.opacity_logits[0], 0.0f);  // more opacity, more colour on every pixel
-  rg.colour = PlanarImage(10, 10, 3, 1.0f);
-  EXPECT_FALSE(rasterizer->backward(map, view, RenderSettings{}, result, rg, &grads, &why));
-  EXPECT_NE(why.find("wrong shape"), std::string::npos);
-
-  RenderView bad = view;
-  bad.camera.fx = 0;
-  EXPECT_FALSE(rasterizer->forward(map, bad, RenderSettings{}, &result, &why));
-  map.means[0] = std::nanf("");
-  EXPECT_FALSE(rasterizer->forward(map, view, RenderSettings{}, &result, &why));
-  EXPECT_NE(why.find("non-finite"), std::string::npos);
 }
 
 }  // namespace

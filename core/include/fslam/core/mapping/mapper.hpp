@@ -84,7 +84,8 @@ struct MapperConfig {
   int iterations_per_keyframe = 30;
   double newest_keyframe_probability = 0.2;
   // Eq. pruning_set percentiles: tracking keyframes 10 %, mapping keyframes 30 %. A keyframe is a
-  // mapping keyframe when it moved at least this far from the last mapping keyframe.
+  // mapping keyframe when it moved at least this far from the last mapping keyframe
+  // (is_mapping_keyframe in fslam/core/tracking/keyframe_policy.hpp, the tracker's measure).
   double prune_percentile_tracking = 0.10;
   double prune_percentile_mapping = 0.30;
   // The candidates of eq. pruning_set: the Gaussians this round inserted ("the gradient-based

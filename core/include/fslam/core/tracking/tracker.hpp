@@ -11,20 +11,12 @@
 #include "fslam/core/geometry/rgbd_frame.hpp"
 #include "fslam/core/render/planar_image.hpp"
 #include "fslam/core/tracking/gicp.hpp"
+#include "fslam/core/tracking/keyframe_policy.hpp"
 #include "fslam/core/tracking/local_map.hpp"
 #include "fslam/core/tracking/map_target.hpp"
 #include "fslam/core/tracking/preprocess.hpp"
 
 namespace fslam::core {
-
-// Eq. keyframe_crit: a keyframe when translation > tau_t, or rotation > tau_r, or the RMS GICP
-// residual > tau_sigma, measured against the last keyframe.
-struct KeyframeConfig {
-  double translation = 0.05;    // tau_t, metres
-  double rotation_deg = 3.0;    // tau_r, degrees
-  double rms_residual = 0.02;   // tau_sigma, metres
-  bool is_valid(std::string* why = nullptr) const;
-};
 
 // A frame is lost when too few source points find a correspondence or the solve is degenerate.
 struct TrackingLossConfig {

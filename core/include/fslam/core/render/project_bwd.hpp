@@ -1,0 +1,60 @@
+// Projection, backward: the per-thread 2D gradients of composite_bwd reduced once per Gaussian,
+// then chained to its parameters through math::project_gaussian_backward. The CUDA sibling is
+// cuda/src/project_bwd.cu. Internal to core/render and its tests.
+#pragma once
+
+#include <algorithm>
+#include <cstddef>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "fslam/core/math/splat_math.hpp"
+#include "fslam/core/render/raster_state.hpp"
+
+namespace fslam::core::render_impl {
+
+// Adds (+=) to `grads` each visible Gaussian's parameter gradients from the summed 2D gradients
+// in st.thread_grads ([N, kGrad2dFixed + D] each), re-projecting it for the forward's terms.
+template <typename T>
+void project_bwd(const SplatScene<T>& scene, const math::SplatCamera<T>& cam, int D, const RasterState<T>& st,
+                 const SceneGrads<T>& grads) {
+  const std::size_t n = scene.count;
+  const int stride = kGrad2dFixed + D;
+  std::vector<std::vector<T>*> parts;
+  for (auto& b : st.thread_grads) parts.push_back(&b);
+  const int sh_stride = scene.sh_stride();
+  const int K = (scene.sh_degree + 1) * (scene.sh_degree + 1);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const auto& r) {
+    std::vector<T> sum(stride);
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      if (st.projected[i].radius == 0) continue;
+      std::fill(sum.begin(), sum.end(), T(0));
+      for (const std::vector<T>* part : parts)
+        for (int k = 0; k < stride; ++k) sum[k] += (*part)[i * stride + k];
+      const math::ProjectedGradient<T> pg = math::unpack_gradient_2d(sum.data());
+      math::ProjectedGaussian<T> projected;
+      math::ProjectionTerms<T> terms;
+      math::project_gaussian(scene.means + 3 * i, scene.rotations + 4 * i, scene.log_scales + 3 * i,
+                             scene.opacity_logits[i], scene.filter(i), scene.sh + i * sh_stride,
+                             scene.sh_degree, cam, &projected, &terms);
+      math::GaussianParamGradient<T> pgrad;
+      math::project_gaussian_backward(scene.rotations + 4 * i, scene.filter(i),
+                                      scene.sh + i * sh_stride, scene.sh_degree, cam, projected,
+                                      terms, pg, &pgrad);
+      for (int k = 0; k < 3; ++k) grads.means[3 * i + k] += pgrad.mean[k];
+      for (int k = 0; k < 4; ++k) grads.rotations[4 * i + k] += pgrad.quat[k];
+      for (int k = 0; k < 3; ++k) grads.log_scales[3 * i + k] += pgrad.log_scale[k];
+      grads.opacity_logits[i] += pgrad.opacity_logit;
+      for (int k = 0; k < 3 * K; ++k) grads.sh[i * sh_stride + k] += pgrad.sh[k];
+      if (grads.features != nullptr)
+        for (int c = 0; c < D; ++c)
+          grads.features[i * scene.feature_dim + c] += sum[kGrad2dFixed + c];
+      if (grads.importance_rgb != nullptr) grads.importance_rgb[i] += sum[12];
+      if (grads.importance_feature != nullptr) grads.importance_feature[i] += sum[13];
+    }
+  });
+}
+
+}  // namespace fslam::core::render_impl
