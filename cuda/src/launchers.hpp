@@ -8,17 +8,10 @@
 #include <cuda_runtime.h>
 
 #include "fslam/core/math/splat_math.hpp"
-#include "fslam/core/math/unproject.hpp"
 
 #include "device_buffer.hpp"
 
 namespace fslam::cuda {
-
-// unproject_fwd.cu. depth: [height * width] float metres (device); points: [height * width * 3] float (device).
-// Returns the launch status; zero pixels is a no-op.
-cudaError_t unproject_depth_fwd(const core::math::Intrinsics& k, const float* depth, int width,
-                                int height, float min_depth, float max_depth, float* points,
-                                cudaStream_t stream);
 
 // ---------------------------------------------------------------- rasteriser
 constexpr int kRasterTile = 16;           // pixels per tile side, as the CPU rasteriser's kTileSize

@@ -19,10 +19,10 @@ void add_version_command(CLI::App& root, CommandList* commands) {
               << "backends compiled in: cpu" << (server::cuda_compiled_in() ? ", cuda" : "")
               << "\n";
     std::string notice, why;
-    auto chosen = server::make_backend(*backend, &notice, &why);
+    auto chosen = server::make_rasterizer(*backend, server::RasterUse::kRender, &notice, &why);
     if (!chosen) return fail(why);
     if (!notice.empty()) std::cout << notice << "\n";
-    std::cout << "backend in use: " << chosen->name() << std::endl;
+    std::cout << "backend in use: " << chosen->name() << " (rendering; mapping: compute.backend, docs/architecture.md)" << std::endl;
     return 0;
   }});
 }

@@ -9,32 +9,6 @@ namespace fslam::server {
 
 bool cuda_compiled_in() { return FSLAM_HAVE_CUDA != 0; }
 
-std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, std::string* notice,
-                                                   std::string* why) {
-  if (choice != "auto" && choice != "cpu" && choice != "cuda") {
-    if (why) *why = "compute.backend must be auto, cpu or cuda, got '" + choice + "'";
-    return nullptr;
-  }
-  if (choice == "cpu") return core::make_cpu_backend();
-#if FSLAM_HAVE_CUDA
-  std::string reason;
-  if (auto backend = cuda::make_cuda_backend(0, &reason)) return backend;
-  if (choice == "cuda") {
-    if (why) *why = "compute.backend is cuda but no GPU is usable (" + reason + ")";
-    return nullptr;
-  }
-  if (notice) *notice = "CUDA: no usable GPU (" + reason + "); using the CPU backend";
-#else
-  if (choice == "cuda") {
-    if (why) *why = "compute.backend is cuda but this build has no CUDA backend "
-                    "(configure with -DFSLAM_WITH_CUDA=ON)";
-    return nullptr;
-  }
-  if (notice) *notice = "CUDA: not compiled in; using the CPU backend";
-#endif
-  return core::make_cpu_backend();
-}
-
 std::unique_ptr<core::Rasterizer> make_rasterizer(const std::string& choice, RasterUse use, std::string* notice,
                                                   std::string* why) {
   if (choice != "auto" && choice != "cpu" && choice != "cuda") {

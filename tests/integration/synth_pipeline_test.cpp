@@ -344,7 +344,7 @@ TEST(Cli, VersionReportsTheBackendInOneLine) {
   ASSERT_EQ(run_command(fslam_bin() + " version", &out, &err), 0) << err;
   EXPECT_NE(out.find("backend in use: "), std::string::npos) << out;
   if (out.find("backend in use: cpu") != std::string::npos) {
-    EXPECT_NE(out.find("using the CPU backend"), std::string::npos) << out;
+    EXPECT_NE(out.find("using the CPU rasteriser"), std::string::npos) << out;
   }
 }
 

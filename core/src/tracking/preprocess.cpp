@@ -13,13 +13,26 @@
 #include <Eigen/Geometry>
 #include <flann/flann.hpp>
 
-#include "fslam/core/compute/backend.hpp"
 #include "fslam/core/error.hpp"
 #include "fslam/core/math/unproject.hpp"
 
 namespace fslam::core {
 
 namespace {
+
+using core::fail;
+
+// A depth image the camera describes: non-empty CV_32FC1 metres, valid intrinsics, same size.
+bool check_depth_and_camera(const cv::Mat& depth, const PinholeCamera& camera, std::string* why) {
+  if (depth.empty() || depth.type() != CV_32FC1) return fail(why, "depth must be a non-empty CV_32FC1 image in metres");
+  std::string reason;
+  if (!camera.is_valid(&reason)) return fail(why, "bad intrinsics: " + reason);
+  if (depth.cols != camera.width || depth.rows != camera.height) {
+    return fail(why, "depth is " + std::to_string(depth.cols) + "x" + std::to_string(depth.rows) +
+                         " but the camera is " + std::to_string(camera.width) + "x" + std::to_string(camera.height));
+  }
+  return true;
+}
 
 constexpr float kMissing = std::numeric_limits<float>::quiet_NaN();
 
@@ -437,7 +450,7 @@ bool preprocess_frame(const RgbdFrame& frame, const PreprocessConfig& config, Ga
   assert(out != nullptr);
   std::string reason;
   if (!config.is_valid(&reason)) return fail(why, "preprocess config: " + reason);
-  if (!check_unproject_inputs(frame.depth, frame.camera, why)) return false;
+  if (!check_depth_and_camera(frame.depth, frame.camera, why)) return false;
 
   out->clear();
   Lattice lattice;

@@ -1,22 +1,16 @@
-// The one place that chooses a compute backend (design.md: compute.backend: auto|cpu|cuda).
+// The one place that chooses a compute backend (design.md: compute.backend: auto|cpu|cuda): the
+// rasteriser, the one operation with a CPU and a CUDA implementation.
 #pragma once
 
 #include <memory>
 #include <string>
 
-#include "fslam/core/compute/backend.hpp"
 #include "fslam/core/render/rasterizer.hpp"
 
 namespace fslam::server {
 
 // The CUDA backends this binary was built with: "cuda" or "" (CPU only).
 bool cuda_compiled_in();
-
-// `choice` is "auto", "cpu" or "cuda". "auto" takes the GPU when one is usable and otherwise the
-// CPU, explaining the fallback in one line in `notice`. "cuda" in a build without CUDA, or with no
-// usable GPU, is a configuration error: nullptr with `why`.
-std::unique_ptr<core::ComputeBackend> make_backend(const std::string& choice, std::string* notice,
-                                                   std::string* why);
 
 // What a rasteriser is for: kRender needs forward() only (render and segmentation queries,
 // fslam render, segment-eval); kMapping needs backward() too (the mapper).

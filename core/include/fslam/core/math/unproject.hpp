@@ -1,4 +1,4 @@
-// Depth-to-point math shared by the CPU backend (core) and the CUDA kernels (cuda/).
+// Depth-to-point math, plain data (the tracker's preprocessing and the losses' normals use it).
 #pragma once
 
 #include "fslam/core/math/host_device.hpp"
