@@ -152,8 +152,6 @@ bool track_sequence(const Dataset& dataset, SlamPipeline* pipeline, const Sequen
         continue;
       }
     }
-    // The trajectory starts where the recording's ground truth does, when it has one.
-    if (i == 0 && frame.T_world_camera_gt) pipeline->set_initial_pose(*frame.T_world_camera_gt);
     if (config.ground_truth_poses && !frame.T_world_camera_gt) {
       return fail(why, "mapping at ground-truth poses: frame " + std::to_string(frame.id) + " has no ground truth");
     }

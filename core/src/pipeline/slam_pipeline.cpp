@@ -38,10 +38,6 @@ SlamPipeline::SlamPipeline(const PipelineConfig& config,
 
 SlamPipeline::~SlamPipeline() = default;
 
-void SlamPipeline::set_initial_pose(const Eigen::Isometry3d& T_world_camera) {
-  tracker_.set_initial_pose(T_world_camera);
-}
-
 // Pyramids handed back when their last holder drops them (the prepared frame, or the mapper
 // once it has its latent), so that encoding reuses ~17 MB buffers instead of zeroing and
 // faulting in fresh ones (measured: 10-20 % of the tracking thread).
@@ -118,6 +114,8 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
     }
     if (target) tracker_.set_map_target(*target, last_keyframe);
   }
+  // The trajectory starts where the recording's ground truth does, when it has one.
+  if (tracker_.keyframe_count() == 0 && frame.T_world_camera_gt) tracker_.set_initial_pose(*frame.T_world_camera_gt);
   // Register and decide on a keyframe (eq. feat_gicp, keyframe_crit).
   if (!tracker_.track_prepared(frame, prepared.source, result, why,
                                prepared.latent.empty() ? nullptr : &prepared.latent)) {

@@ -80,10 +80,11 @@ class SlamPipeline {
   // the frame's latent and source Gaussians (encoder, phi, preprocessing) ...
   bool prepare_frame(RgbdFrame frame, PreparedFrame* out, std::string* why);
   // ... then feature-guided GICP, the keyframe decision and the hand-over to mapping. Calls of
-  // each step come one at a time, and track_prepared in frame order.
+  // each step come one at a time, and track_prepared in frame order. The trajectory starts at the
+  // first frame's ground-truth pose when it has one (evaluation runs and streams), else at the
+  // identity.
   bool track_prepared(PreparedFrame&& prepared, TrackingResult* result, std::string* why,
                       const Eigen::Isometry3d* mapping_pose = nullptr);
-  void set_initial_pose(const Eigen::Isometry3d& T_world_camera);
 
   // Mapping thread: runs until finish() was called and every queued keyframe is mapped. In real
   // time the caller runs it at a lower priority than tracking (server::MappingThread does).
