@@ -19,41 +19,9 @@
 namespace fslam::client {
 namespace {
 
-// Frames written and not yet acknowledged by the server's reader: past it push_frame waits up to
-// 1 s for the server to catch up, then fails (docs/protocol.md "Flow control").
-constexpr std::int32_t kFramesInFlight = 16;
-
 bool fail(std::string* why, const std::string& message) {
   if (why) *why = message;
   return false;
-}
-
-// Encodes an image into bytes: raw rows, PNG (lossless) or JPEG.
-bool encode(const cv::Mat& image, PayloadEncoding encoding, int jpeg_quality,
-            std::vector<std::uint8_t>* bytes, std::string* why) {
-  if (encoding == PayloadEncoding::raw) {
-    const std::size_t n = image.total() * image.elemSize();
-    bytes->assign(image.data, image.data + n);
-    return true;
-  }
-  std::vector<int> params;
-  const char* ext = ".png";
-  if (encoding == PayloadEncoding::jpeg) {
-    ext = ".jpg";
-    params = {cv::IMWRITE_JPEG_QUALITY, jpeg_quality};
-  } else {
-    params = {cv::IMWRITE_PNG_COMPRESSION, 1};  // fast: frames are streamed, not archived
-  }
-  if (!cv::imencode(ext, image, *bytes, params)) return fail(why, std::string("cannot encode ") + ext);
-  return true;
-}
-
-fslam_proto_ImageEncoding wire(PayloadEncoding e) {
-  switch (e) {
-    case PayloadEncoding::png: return fslam_proto_ENCODING_PNG;
-    case PayloadEncoding::jpeg: return fslam_proto_ENCODING_JPEG;
-    default: return fslam_proto_ENCODING_RAW;
-  }
 }
 
 }  // namespace
@@ -546,68 +514,6 @@ void Client::listen() {
       if (pose_callback_) pose_callback_(update);
     });
   }
-}
-
-bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why) {
-  const CameraIntrinsics& k = frame.intrinsics;
-  if (session.empty()) return fail(why, "push_frame: no session name");
-  if (!frame_writer_) return fail(why, "push_frame: " + frames_refused_);
-  {
-    std::lock_guard<std::mutex> lock(callback_mutex_);
-    if (addresses_.count(session) == 0) addresses_.insert(session);
-  }
-  if (!(k.fx > 0 && k.fy > 0 && std::isfinite(k.fx) && std::isfinite(k.fy) && std::isfinite(k.cx) &&
-        std::isfinite(k.cy)) ||
-      k.width == 0 || k.height == 0) {
-    return fail(why, "push_frame: intrinsics must be finite with positive focal lengths and size");
-  }
-  if (frame.rgb == nullptr || frame.depth == nullptr) return fail(why, "push_frame: colour and depth are required");
-  if (frame.depth_encoding == PayloadEncoding::jpeg) {
-    return fail(why, "push_frame: depth must be encoded losslessly (raw or png)");
-  }
-  if (!(frame.depth_scale > 0) || !std::isfinite(frame.depth_scale)) {
-    return fail(why, "push_frame: depth scale must be positive");
-  }
-  const int w = static_cast<int>(k.width), h = static_cast<int>(k.height);
-  // Encoded payloads are ordinary PNG/JPEG files of the colour image (OpenCV's encoder takes BGR,
-  // hence the swap); raw payloads are RGB rows (docs/protocol.md).
-  cv::Mat rgb(h, w, CV_8UC3, const_cast<std::uint8_t*>(frame.rgb));
-  cv::Mat depth(h, w, CV_16UC1, const_cast<std::uint16_t*>(frame.depth));
-  cv::Mat bgr;
-  cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
-  std::vector<std::uint8_t> colour_bytes, depth_bytes;
-  if (!encode(frame.colour_encoding == PayloadEncoding::raw ? rgb : bgr, frame.colour_encoding,
-              frame.jpeg_quality, &colour_bytes, why) ||
-      !(frame.depth_encoding == PayloadEncoding::png
-            ? encode_depth_png(frame.depth, w, h, &depth_bytes, why)
-            : encode(depth, frame.depth_encoding, 0, &depth_bytes, why))) {
-    return false;
-  }
-  fslam_proto_Frame msg{};
-  std::string session_copy = session;
-  msg.session = session_copy.data();
-  msg.frame_id = frame.frame_id;
-  msg.timestamp = frame.timestamp;
-  msg.intrinsics = {k.fx, k.fy, k.cx, k.cy, k.width, k.height};
-  msg.depth_scale = frame.depth_scale;
-  msg.colour = {wire(frame.colour_encoding), k.width, k.height, 3, 1, {}};
-  msg.colour.data = {static_cast<uint32_t>(colour_bytes.size()),
-                     static_cast<uint32_t>(colour_bytes.size()), colour_bytes.data(), false};
-  msg.depth = {wire(frame.depth_encoding), k.width, k.height, 1, 2, {}};
-  msg.depth.data = {static_cast<uint32_t>(depth_bytes.size()), static_cast<uint32_t>(depth_bytes.size()),
-                    depth_bytes.data(), false};
-  msg.has_gt_pose = frame.has_gt_pose;
-  for (int i = 0; i < 3; ++i) msg.gt_pose.translation[i] = frame.gt_translation[i];
-  for (int i = 0; i < 4; ++i) msg.gt_pose.rotation[i] = frame.gt_rotation[i];
-  const dds_return_t rc = dds_write(frame_writer_.get(), &msg);
-  if (rc == DDS_RETCODE_TIMEOUT) {
-    return fail(why, "push_frame: the server has not taken the last " + std::to_string(kFramesInFlight) +
-                         " frames for 1 s; frame " + std::to_string(frame.frame_id) + " not sent");
-  }
-  if (rc != DDS_RETCODE_OK) {
-    return fail(why, std::string("push_frame: DDS write failed: ") + dds_strretcode(rc));
-  }
-  return true;
 }
 
 }  // namespace fslam::client

@@ -10,16 +10,6 @@
 
 namespace fslam::server {
 
-cv::Mat colour_to_rgb8(const core::PlanarImage& colour) {
-  cv::Mat out(colour.height, colour.width, CV_8UC3);
-  for (int v = 0; v < colour.height; ++v)
-    for (int u = 0; u < colour.width; ++u)
-      for (int c = 0; c < 3; ++c)
-        out.at<cv::Vec3b>(v, u)[c] = cv::saturate_cast<uchar>(
-            std::lround(255.0f * std::clamp(colour.at(c, v, u), 0.f, 1.f)));
-  return out;
-}
-
 cv::Mat plane_to_mat(const core::PlanarImage& image, int channel) {
   cv::Mat out(image.height, image.width, CV_32FC1);
   std::copy(image.plane(channel), image.plane(channel) + image.pixels(), out.ptr<float>());

@@ -177,6 +177,10 @@ struct GaussianRecord {
 };
 GaussianRecord unpack_gaussian(const std::uint8_t* record);
 
+// Frames written and not yet acknowledged by the server's reader: past it push_frame waits up to
+// 1 s for the server to catch up, then fails (docs/protocol.md "Flow control").
+constexpr std::int32_t kFramesInFlight = 16;
+
 struct ClientOptions {
   std::string prefix = "fslam";        // topic prefix of the deployment
   dds_domainid_t domain = DDS_DOMAIN_DEFAULT;

@@ -7,6 +7,7 @@
 
 #include <opencv2/core/mat.hpp>
 
+#include "fslam/core/eval/view_eval.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/render/rasterizer.hpp"
 
@@ -15,8 +16,8 @@
 
 namespace fslam::server {
 
-// [3, H, W] colour in [0, 1] -> CV_8UC3 RGB.
-cv::Mat colour_to_rgb8(const core::PlanarImage& colour);
+// [3, H, W] colour in [0, 1] -> CV_8UC3 RGB: core's (the image the held-out scores are of).
+using core::colour_to_rgb8;
 // One plane of a PlanarImage as CV_32FC1.
 cv::Mat plane_to_mat(const core::PlanarImage& image, int channel);
 // Depth in metres -> turbo colour map over [0, max_depth], black where missing.

@@ -40,7 +40,7 @@ struct LoraSchedule {
 struct FeatureAutoencoderConfig {
   // C_l per level, coarsest first; must match the feature encoder (FeatureEncoder::level_shapes).
   std::vector<int> level_channels = {256, 64, 32};
-  int latent_dim = 16;       // D; must equal MapperConfig::feature_dim
+  int latent_dim = 16;       // D; the map's latent width (SlamPipeline takes it from here)
   int encoder_hidden = 64;   // phi: C -> encoder_hidden -> D
   // phi^(l): D -> head_hidden -> C_l. 16 keeps the decode of 2,000 samples near 1 ms on one
   // core (32: about 2 ms, for ~8 % lower held-out error; docs/features_autoencoder.md).
