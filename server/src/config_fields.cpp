@@ -375,6 +375,9 @@ void add_server_fields(SettingsTable<ServerConfig>* f) {
   server.add("max_sessions", &ServerConfig::max_sessions);
   server.add("max_maps", &ServerConfig::max_maps);
   server.add("max_prompts", &ServerConfig::max_prompts);
+  server.add("session_lease_s", &ServerConfig::session_lease_s);
+  server.add("max_session_fps", &ServerConfig::max_session_fps);
+  server.add("max_client_requests_per_s", &ServerConfig::max_client_requests_per_s);
   server.add("grounding_model", &ServerConfig::grounding_model);
   server.add("grounding_input_size", &ServerConfig::grounding_input_size);
   server.add("grounding_box_threshold", &ServerConfig::grounding_box_threshold);

@@ -17,12 +17,6 @@
 namespace fslam::server {
 namespace {
 
-std::string number(double x) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%g", x);
-  return text;
-}
-
 // Checks the prompts of a segment request against their mode and the prompt view; `boxes` gets
 // the box prompts. Cheap checks only: nothing is rendered.
 bool check_prompts(const fslam_proto_SegmentMode mode, const std::vector<float>& points,
@@ -45,7 +39,7 @@ bool check_prompts(const fslam_proto_SegmentMode mode, const std::vector<float>&
       const double u = points[i], v = points[i + 1];
       // Pixel centres at integers: a point belongs to the view when it rounds into its grid.
       if (!(u >= -0.5 && u < w - 0.5 && v >= -0.5 && v < h - 0.5)) {
-        return core::fail(why, "segment: point (" + number(u) + ", " + number(v) +
+        return core::fail(why, "segment: point (" + number_text(u) + ", " + number_text(v) +
                                    ") lies outside the " + size + " view");
       }
       uv->emplace_back(u, v);
@@ -58,8 +52,8 @@ bool check_prompts(const fslam_proto_SegmentMode mode, const std::vector<float>&
     }
     for (std::size_t i = 0; i < box_values.size(); i += 4) {
       const core::BoxPrompt b{box_values[i], box_values[i + 1], box_values[i + 2], box_values[i + 3]};
-      const std::string name = "box (" + number(b.u0) + ", " + number(b.v0) + ", " + number(b.u1) +
-                               ", " + number(b.v1) + ")";
+      const std::string name = "box (" + number_text(b.u0) + ", " + number_text(b.v0) + ", " + number_text(b.u1) +
+                               ", " + number_text(b.v1) + ")";
       if (!(b.u1 > b.u0 && b.v1 > b.v0)) {
         return core::fail(why, "segment: " + name + " is empty: it needs u1 > u0 and v1 > v0");
       }
@@ -109,7 +103,24 @@ void Queries::accept(const fslam_proto_Request& msg) {
   auto query = std::make_unique<Query>(query_of(msg));
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    auto key = std::make_pair(query->client, query->request_id);
+    if (accepted_.count(key) > 0) return;  // a resend of one queued or answered already
+    if (client_rates_.size() > kRememberedRequests) client_rates_.clear();  // bounded: limits restart
+    auto rate = client_rates_.try_emplace(query->client, config_.max_client_requests_per_s).first;
+    if (!rate->second.take()) {
+      counters_.add(&ServerStats::requests_failed);
+      replies_.result(msg.client, msg.request_id, query->map_name,
+                      "more than " + number_text(config_.max_client_requests_per_s) +
+                          " requests per second from this client (server.max_client_requests_per_s); slow down");
+      return;
+    }
     if (queue_.size() < config_.query_queue_capacity) {
+      accepted_.insert(key);
+      accepted_order_.push_back(std::move(key));
+      if (accepted_order_.size() > kRememberedRequests) {
+        accepted_.erase(accepted_order_.front());
+        accepted_order_.pop_front();
+      }
       queue_.push_back(std::move(query));
       wake_.notify_one();
       return;
@@ -355,7 +366,7 @@ bool Queries::selection_image(const Query& query, const core::GaussianMap& versi
       }
       if (found.empty()) {
         return core::fail(why, "segment: the grounding detector found nothing for '" + query.text +
-                                   "' (no box scored " + number(config_.grounding_box_threshold) +
+                                   "' (no box scored " + number_text(config_.grounding_box_threshold) +
                                    " or more)");
       }
       for (const GroundedBox& g : found) boxes.push_back({g.u0, g.v0, g.u1, g.v1});

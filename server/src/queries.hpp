@@ -9,8 +9,11 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
+#include <utility>
 #include <thread>
+#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -21,6 +24,7 @@
 #include "fslam/server/grounding.hpp"
 #include "fslam/server/server.hpp"
 #include "fslam/server/wire.hpp"
+#include "fslam/server/rate_limit.hpp"
 
 namespace fslam::server {
 
@@ -39,7 +43,10 @@ class Queries {
   // Starts server.query_threads threads answering the queue.
   void start();
   // A fslam/requests sample: queued, or refused as busy when server.query_queue_capacity wait.
+  // A (client, request id) accepted before (a client's resend, docs/protocol.md "Resending") is
+  // answered once: the repeat is dropped. The last kRememberedRequests ids are remembered.
   void accept(const fslam_proto_Request& msg);
+  static constexpr std::size_t kRememberedRequests = 4096;
   // Answers what is queued, then stops the threads.
   void stop();
 
@@ -75,6 +82,9 @@ class Queries {
   std::vector<std::thread> threads_;
   std::mutex mutex_;  // guards everything below
   std::deque<std::unique_ptr<Query>> queue_;
+  std::unordered_map<std::string, RateLimit> client_rates_;  // server.max_client_requests_per_s
+  std::set<std::pair<std::string, std::uint64_t>> accepted_;         // recent (client, id)
+  std::deque<std::pair<std::string, std::uint64_t>> accepted_order_;  // oldest first
   std::condition_variable wake_;
   bool stopping_ = false;
 };

@@ -179,6 +179,7 @@ void Server::ingest() {
       for (const auto& [map, holder] : directory_->take_lost()) {
         sessions_->withdraw_map(map, "is held by instance '" + holder.instance + "' (claimed first)");
       }
+      if (config_.session_lease_s > 0) sessions_->close_idle(config_.session_lease_s);
       if (health_) {
         const ServerStats s = stats();
         health_->beat(config_.service_prefix(), s.maps, s.sessions);

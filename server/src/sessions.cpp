@@ -1,5 +1,6 @@
 #include "sessions.hpp"
 
+#include <sstream>
 #include <utility>
 
 #include <tbb/task_arena.h>
@@ -9,6 +10,7 @@
 #include "fslam/server/map_files.hpp"
 #include "counters.hpp"
 #include "map_registry.hpp"
+#include "fslam/server/rate_limit.hpp"
 
 namespace fslam::server {
 namespace {
@@ -55,7 +57,8 @@ struct Sessions::Session {
   std::deque<PreparedFrame> prepared;  // waiting to be registered; live: at most one
   bool closing = false;
   bool preparing_done = false;    // the preparing thread drained `queue` after closing
-  bool started = false;           // the first frame was registered (tracking thread only)
+  Clock::time_point last_frame = Clock::now();  // opened, or the newest frame arrived (guarded by `mutex`)
+  RateLimit frame_rate;                          // server.max_session_fps (guarded by `mutex`)
   std::thread preparing, tracking;
   std::unique_ptr<MappingThread> mapping;
   // Status counters (guarded by `mutex`).
@@ -130,6 +133,7 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
     s->map = map;
     s->live = msg.policy == fslam_proto_POLICY_LIVE ||
               (msg.policy != fslam_proto_POLICY_QUEUE && config_.frame_policy == "live");
+    s->frame_rate = RateLimit(config_.max_session_fps);
     start_threads(s.get());
     sessions_[name] = std::move(s);
   }
@@ -170,13 +174,61 @@ void Sessions::start_threads(Session* raw) {
       });
 }
 
-void Sessions::close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id) {
+void Sessions::close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id,
+                           std::string answer) {
   const std::string map = session->map->name;
-  std::lock_guard<std::mutex> lock(mutex_);
-  closers_.push_back(std::thread([this, owned = std::move(session), client, map, request_id] {
+  start_closer([this, owned = std::shared_ptr<Session>(std::move(session)), client, map, request_id, answer] {
     finish_session(owned.get());
-    replies_.result(client.c_str(), request_id, map, "");
-  }));
+    replies_.result(client.c_str(), request_id, map, answer);
+  });
+}
+
+void Sessions::start_closer(std::function<void()> work) {
+  auto done = std::make_shared<std::atomic<bool>>(false);
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto it = closers_.begin(); it != closers_.end();) {
+    if (!*it->done) {
+      ++it;
+      continue;
+    }
+    it->thread.join();
+    it = closers_.erase(it);
+  }
+  closers_.push_back({std::thread([work = std::move(work), done] {
+                        work();
+                        *done = true;
+                      }),
+                      done});
+}
+
+void Sessions::close_idle(double lease_s) {
+  const auto lease = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(lease_s));
+  std::vector<std::unique_ptr<Session>> idle;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto it = sessions_.begin(); it != sessions_.end();) {
+      bool expired = false;
+      {
+        std::lock_guard<std::mutex> qlock(it->second->mutex);
+        expired = Clock::now() - it->second->last_frame > lease;
+      }
+      if (!expired) {
+        ++it;
+        continue;
+      }
+      idle.push_back(std::move(it->second));
+      it = sessions_.erase(it);
+    }
+  }
+  for (auto& s : idle) {
+    const std::string name = s->name, map = s->map->name;
+    std::ostringstream lease_text;
+    lease_text << lease_s;
+    const std::string why = "session '" + name + "' closed: no frame for " + lease_text.str() +
+                            " s (server.session_lease_s); map '" + map + "' stays served";
+    if (log_) log_(why);
+    close_later(std::move(s), name, 0, why);
+  }
 }
 
 void Sessions::withdraw_map(const std::string& name, const std::string& reason) {
@@ -196,8 +248,7 @@ void Sessions::withdraw_map(const std::string& name, const std::string& reason) 
   std::string session = closing->name;
   replies_.result(session.c_str(), 0, name, "map '" + name + "' " + reason + "; session '" +
                                                 session + "' is closed here");
-  std::lock_guard<std::mutex> lock(mutex_);
-  closers_.push_back(std::thread([this, owned = std::move(closing)] { finish_session(owned.get()); }));
+  start_closer([this, owned = std::shared_ptr<Session>(std::move(closing))] { finish_session(owned.get()); });
 }
 
 void Sessions::finish_session(Session* s) {
@@ -221,12 +272,12 @@ void Sessions::close_all() {
     sessions.swap(sessions_);
   }
   for (auto& [name, s] : sessions) finish_session(s.get());
-  std::vector<std::thread> closers;
+  std::vector<Closer> closers;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     closers.swap(closers_);
   }
-  for (std::thread& t : closers) t.join();
+  for (Closer& c : closers) c.thread.join();
 }
 
 std::vector<SessionReport> Sessions::reports() const {
@@ -293,6 +344,15 @@ void Sessions::handle_frame(const fslam_proto_Frame& msg) {
   {
     std::lock_guard<std::mutex> qlock(s.mutex);
     ++s.received;
+    s.last_frame = Clock::now();
+    if (!s.frame_rate.take(s.last_frame)) {
+      counters_.add(&ServerStats::frames_dropped);
+      ++s.dropped;
+      s.last_drop_reason = "frame " + std::to_string(msg.frame_id) + " refused: more than " +
+                           number_text(config_.max_session_fps) + " frames per second (server.max_session_fps)";
+      replies_.result(msg.session, msg.frame_id, name, s.last_drop_reason);
+      return;
+    }
     if (s.live) {
       // Live: the tracker takes the newest frame; one still waiting is skipped, and said so.
       while (!s.queue.empty()) {
@@ -419,10 +479,6 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
   const std::uint64_t frame_id = static_cast<std::uint64_t>(frame.id);
   const double timestamp = frame.timestamp;
   const core::PinholeCamera camera = frame.camera;
-  if (!s->started) {
-    if (frame.T_world_camera_gt) pipeline.set_initial_pose(*frame.T_world_camera_gt);
-    s->started = true;
-  }
   core::TrackingResult result;
   std::string why;
   const Clock::time_point t0 = Clock::now();

@@ -5,6 +5,7 @@
 // overflow drops the newest with an error result.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -52,6 +53,9 @@ class Sessions {
   // Scale-out (map_directory.hpp): stops serving a map another instance holds by the claim
   // rule; its streaming session, if any, is closed with an error result saying why.
   void withdraw_map(const std::string& name, const std::string& reason);
+  // Closes, as a SESSION_CLOSE would, every session that received no frame for `lease_s`
+  // seconds (server.session_lease_s: its client died or stopped streaming); maps stay served.
+  void close_idle(double lease_s);
   // Lets every session track what it accepted, then stops them all (deactivate).
   void close_all();
   std::size_t count() const;
@@ -74,7 +78,11 @@ class Sessions {
                     const std::string& map_name);
   std::shared_ptr<core::SlamPipeline> make_pipeline(std::string* why) const;
   void start_threads(Session* session);
-  void close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id);
+  void close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id,
+                   std::string answer = "");
+  // Starts `work` on a closer thread; joins the closers that have finished (so that sessions
+  // opened and closed without end do not pile up threads).
+  void start_closer(std::function<void()> work);
   void finish_session(Session* session);
   // A session's frame threads: decode + prepare (features, source Gaussians), then register;
   // or one thread doing both (server.pipelined_tracking false).
@@ -93,7 +101,11 @@ class Sessions {
   Log log_;
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, std::unique_ptr<Session>> sessions_;
-  std::vector<std::thread> closers_;  // sessions being drained after a close
+  struct Closer {
+    std::thread thread;
+    std::shared_ptr<std::atomic<bool>> done;
+  };
+  std::vector<Closer> closers_;  // sessions being drained after a close
   mutable std::mutex listener_mutex_;
   std::function<void(const Server::TrackedPose&)> pose_listener_;
 };

@@ -1,5 +1,6 @@
 #include "fslam/server/wire.hpp"
 
+#include <cstdio>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -353,6 +354,12 @@ void Replies::skip(const std::string& session, std::uint64_t frame_id, double ti
   pose.state = fslam_proto_TRACKING_SKIPPED;
   pose.note = note.data();
   dds_write(pose_writer_, &pose);
+}
+
+std::string number_text(double x) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", x);
+  return text;
 }
 
 }  // namespace fslam::server

@@ -17,6 +17,17 @@ stop_started() {
   for pid in "${PIDS[@]}"; do wait "$pid" 2>/dev/null; done
 }
 
+# stop_within PID SECONDS: SIGTERM, then wait up to SECONDS for PID to exit; prints the
+# milliseconds it took, false when it was still running.
+stop_within() {
+  local t0 i
+  t0=$(date +%s%N)
+  kill -TERM "$1" 2>/dev/null
+  for i in $(seq $(( $2 * 10 ))); do kill -0 "$1" 2>/dev/null || break; sleep 0.1; done
+  echo $(( ($(date +%s%N) - t0) / 1000000 ))
+  ! kill -0 "$1" 2>/dev/null
+}
+
 # wait_for_line FILE TEXT [TENTHS]: until FILE holds TEXT (default 20 s); false when it never does.
 wait_for_line() {
   local i

@@ -60,11 +60,8 @@ ok = ok and len(probe) > 0 and r["probe_failures"] == 0 and probe[-1] < 5000
 ok = ok and r["after"]["new_session"] and r["after"]["render_ok"]
 sys.exit(0 if ok else 1)
 PY
-t0=$(date +%s%N)
-kill -TERM "$SERVER"
-for _ in $(seq 150); do kill -0 "$SERVER" 2>/dev/null || break; sleep 0.1; done
-stop_ms=$(( ($(date +%s%N) - t0) / 1000000 ))
-check "SIGTERM honoured within 15 s (${stop_ms} ms, maps saved)" test "$stop_ms" -lt 15000
+stop_ms=$(stop_within "$SERVER" 15)
+check "SIGTERM honoured within 15 s (${stop_ms} ms)" test "$stop_ms" -lt 15000
 wait "$SERVER" 2>/dev/null
 peak_kb=$(sort -n "$WORK/rss_kb.txt" | tail -1)
 check "peak resident memory $((peak_kb / 1024)) MiB under ${BUDGET_MB} MiB" test "$((peak_kb / 1024))" -lt "$BUDGET_MB"

