@@ -24,15 +24,26 @@ bool plausible_focal(double f, int size) {
   return f >= 0.005 * size && f <= 1000.0 * size;
 }
 
+// The encoding as the integer it is on the wire. Reading an enum object that holds a value outside
+// its enumerators as the enum is undefined behaviour in C++, and a peer's bytes (or an in-process
+// caller's) can hold any value; found by tests/fuzz/frame_fuzz.cpp.
+std::uint32_t encoding_value(const fslam_proto_Image& image) {
+  std::uint32_t value = 0;
+  static_assert(sizeof(image.encoding) == sizeof(value), "the IDL enum is 32 bits");
+  std::memcpy(&value, &image.encoding, sizeof value);
+  return value;
+}
+
 bool accept_image(const fslam_proto_Image& image, int channels, int bytes_per_channel,
                   const char* what, EncodedImage* out, std::string* why) {
   const std::string name(what);
   const std::size_t n = image.data._length;
   if (n == 0 || image.data._buffer == nullptr) return core::fail(why, name + ": empty payload");
   if (n > kMaxImageBytes) return core::fail(why, name + ": payload over the size limit");
-  if (image.encoding != fslam_proto_ENCODING_RAW && image.encoding != fslam_proto_ENCODING_PNG &&
-      image.encoding != fslam_proto_ENCODING_JPEG) {
-    return core::fail(why, name + ": unknown encoding " + std::to_string(static_cast<int>(image.encoding)));
+  const std::uint32_t encoding = encoding_value(image);
+  if (encoding != fslam_proto_ENCODING_RAW && encoding != fslam_proto_ENCODING_PNG &&
+      encoding != fslam_proto_ENCODING_JPEG) {
+    return core::fail(why, name + ": unknown encoding " + std::to_string(encoding));
   }
   if (image.channels != channels || image.bytes_per_channel != bytes_per_channel) {
     return core::fail(why, name + ": expected " + std::to_string(channels) + " channel(s) of " +
@@ -150,7 +161,7 @@ bool accept_frame(const fslam_proto_Frame& msg, EncodedFrame* out, std::string* 
   }
   if (!std::isfinite(msg.timestamp)) return core::fail(why, "timestamp must be finite");
   if (msg.frame_id > static_cast<std::uint64_t>(INT64_MAX)) return core::fail(why, "frame id must be below 2^63");
-  if (msg.depth.encoding == fslam_proto_ENCODING_JPEG) return core::fail(why, "depth: JPEG is lossy; send RAW or PNG");
+  if (encoding_value(msg.depth) == fslam_proto_ENCODING_JPEG) return core::fail(why, "depth: JPEG is lossy; send RAW or PNG");
   if (msg.colour.width != k.width || msg.colour.height != k.height || msg.depth.width != k.width ||
       msg.depth.height != k.height) {
     return core::fail(why, "colour and depth must have the intrinsics' size");

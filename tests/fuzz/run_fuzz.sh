@@ -6,6 +6,7 @@
 #   bash tests/fuzz/run_fuzz.sh                  # smoke: 10 s per target (what --test runs)
 #   bash tests/fuzz/run_fuzz.sh --seconds 600    # a long run, 10 minutes per target
 #   bash tests/fuzz/run_fuzz.sh --only frame,ply --seconds 60
+#   bash tests/fuzz/run_fuzz.sh --only onnx       # finds OpenCV's importer overflow (see below)
 #   bash tests/fuzz/run_fuzz.sh --seeds          # regenerate tests/fuzz/corpus from make_seeds
 #
 # Options: --build-dir DIR (default build-fuzz)  --jobs N  --out DIR (default out/fuzz: the
@@ -19,7 +20,10 @@ SECONDS_EACH=10
 JOBS="$(nproc)"
 ONLY=""
 SEEDS=0
-TARGETS=(frame ply trajectory dataset autoencoder onnx config)
+# onnx is not in the default list: OpenCV 4.6's ONNX importer (readNetFromONNX) reads past a
+# tensor's data on mutated models within seconds (heap-buffer-overflow inside libopencv_dnn,
+# docs/reliability.md); run it with --only onnx.
+TARGETS=(frame ply trajectory dataset autoencoder config)
 
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -43,7 +47,7 @@ if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
     -DFSLAM_FUZZ=ON -DFSLAM_WITH_CUDA=OFF -DFSLAM_BUILD_TESTS=OFF >/dev/null
 fi
 t0=$SECONDS
-cmake --build "$BUILD_DIR" -j "$JOBS" --target fslam_fuzz_make_seeds "${TARGETS[@]/#/fslam_fuzz_}"
+cmake --build "$BUILD_DIR" -j "$JOBS" --target fslam_fuzz_make_seeds "${TARGETS[@]/#/fslam_fuzz_}" fslam_fuzz_onnx
 echo "== fuzz build took $((SECONDS - t0)) s"
 
 CORPUS="$ROOT/tests/fuzz/corpus"

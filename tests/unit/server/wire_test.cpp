@@ -3,6 +3,7 @@
 // rigid) and what decodes; poses both ways; result images and the buffers they point into.
 #include "fslam/server/wire.hpp"
 
+#include <cstring>
 #include <limits>
 #include <vector>
 
@@ -64,6 +65,21 @@ TEST(FrameCodec, AcceptsAndDecodesAGoodFrame) {
     ASSERT_TRUE(decode_frame(accepted, &frame, &why)) << why;
     EXPECT_EQ(frame.colour.cols, 64);
     EXPECT_NEAR(frame.depth.at<float>(10, 10), 1.5f, 1e-6f);  // metres
+  }
+}
+
+// An encoding value outside the enum (a peer's bytes can hold any) is refused with its number, not
+// read as the enum (undefined behaviour: found by tests/fuzz/frame_fuzz.cpp, whose crashing input
+// is in tests/fuzz/corpus/frame/).
+TEST(FrameCodec, RefusesAnUnknownEncodingValue) {
+  for (fslam_proto_Image fslam_proto_Frame::*image : {&fslam_proto_Frame::colour, &fslam_proto_Frame::depth}) {
+    WireFrame wire(64, 48, 64, 48, fslam_proto_ENCODING_PNG);
+    const std::uint32_t value = 51;
+    std::memcpy(&(wire.msg.*image).encoding, &value, sizeof value);
+    EncodedFrame accepted;
+    std::string why;
+    EXPECT_FALSE(accept_frame(wire.msg, &accepted, &why));
+    EXPECT_NE(why.find("unknown encoding 51"), std::string::npos) << why;
   }
 }
 
