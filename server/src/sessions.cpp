@@ -329,16 +329,8 @@ void Sessions::handle_frame(const fslam_proto_Frame& msg) {
   if (it == sessions_.end()) why = "unknown session '" + name + "' (open it first)";
   else if (!accepted) why = accept_why;
   if (!why.empty()) {
-    counters_.add(&ServerStats::frames_rejected);
-    const std::string message = "frame " + std::to_string(msg.frame_id) + ": " + why;
-    if (it != sessions_.end()) {
-      std::lock_guard<std::mutex> qlock(it->second->mutex);
-      ++it->second->received;
-      ++it->second->dropped;
-      it->second->last_drop_reason = message;
-    }
-    replies_.result(msg.session, msg.frame_id, name, message);
-    return;
+    return reject_locked(it == sessions_.end() ? nullptr : it->second.get(), msg.session, msg.frame_id, name,
+                         "frame " + std::to_string(msg.frame_id) + ": " + why);
   }
   Session& s = *it->second;
   {
@@ -346,12 +338,9 @@ void Sessions::handle_frame(const fslam_proto_Frame& msg) {
     ++s.received;
     s.last_frame = Clock::now();
     if (!s.frame_rate.take(s.last_frame)) {
-      counters_.add(&ServerStats::frames_dropped);
-      ++s.dropped;
-      s.last_drop_reason = "frame " + std::to_string(msg.frame_id) + " refused: more than " +
-                           number_text(config_.max_session_fps) + " frames per second (server.max_session_fps)";
-      replies_.result(msg.session, msg.frame_id, name, s.last_drop_reason);
-      return;
+      return drop_locked(&s, msg, "frame " + std::to_string(msg.frame_id) + " refused: more than " +
+                                      number_text(config_.max_session_fps) +
+                                      " frames per second (server.max_session_fps)");
     }
     if (s.live) {
       // Live: the tracker takes the newest frame; one still waiting is skipped, and said so.
@@ -365,17 +354,32 @@ void Sessions::handle_frame(const fslam_proto_Frame& msg) {
         s.queue.pop_front();
       }
     } else if (s.queue.size() >= config_.queue_capacity) {
-      counters_.add(&ServerStats::frames_dropped);
-      ++s.dropped;
-      s.last_drop_reason = "frame " + std::to_string(msg.frame_id) + " dropped: queue full (" +
-                           std::to_string(config_.queue_capacity) + " frames)";
-      replies_.result(msg.session, msg.frame_id, name, s.last_drop_reason);
-      return;
+      return drop_locked(&s, msg, "frame " + std::to_string(msg.frame_id) + " dropped: queue full (" +
+                                      std::to_string(config_.queue_capacity) + " frames)");
     }
     queued.queued = Clock::now();
     s.queue.push_back(std::move(queued));
   }
   s.wake.notify_all();
+}
+
+void Sessions::reject_locked(Session* s, const char* client, std::uint64_t frame_id, const std::string& map,
+                             const std::string& message) {
+  counters_.add(&ServerStats::frames_rejected);
+  if (s != nullptr) {
+    std::lock_guard<std::mutex> qlock(s->mutex);
+    ++s->received;
+    ++s->dropped;
+    s->last_drop_reason = message;
+  }
+  replies_.result(client, frame_id, map, message);
+}
+
+void Sessions::drop_locked(Session* s, const fslam_proto_Frame& msg, std::string reason) {
+  counters_.add(&ServerStats::frames_dropped);
+  ++s->dropped;
+  s->last_drop_reason = std::move(reason);
+  replies_.result(msg.session, msg.frame_id, text(msg.session), s->last_drop_reason);
 }
 
 void Sessions::run_on_one_thread(const std::function<void()>& work) {
@@ -517,21 +521,11 @@ bool Sessions::streams_into(const std::string& session, const std::string& map) 
 }
 
 void Sessions::report_rejected(const std::string& session, const std::string& message) {
-  std::string map = session;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    counters_.add(&ServerStats::frames_received);
-    counters_.add(&ServerStats::frames_rejected);
-    const auto it = sessions_.find(session);
-    if (it != sessions_.end()) {
-      map = it->second->map->name;
-      std::lock_guard<std::mutex> qlock(it->second->mutex);
-      ++it->second->received;
-      ++it->second->dropped;
-      it->second->last_drop_reason = message;
-    }
-  }
-  replies_.result(session.c_str(), 0, map, message);
+  std::lock_guard<std::mutex> lock(mutex_);
+  counters_.add(&ServerStats::frames_received);
+  const auto it = sessions_.find(session);
+  Session* s = it == sessions_.end() ? nullptr : it->second.get();
+  reject_locked(s, session.c_str(), 0, s != nullptr ? s->map->name : session, message);
 }
 
 void Sessions::set_pose_listener(std::function<void(const Server::TrackedPose&)> listener) {

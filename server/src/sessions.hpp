@@ -93,6 +93,14 @@ class Sessions {
   bool next_queued(Session* session, bool room, QueuedFrame* queued);
   bool prepare_one(Session* session, QueuedFrame&& queued, PreparedFrame* prepared);
   void track_one(Session* session, PreparedFrame&& prepared);
+  // A frame refused before its session's policy (unknown session, bad frame, or from the ROS 2
+  // bridge): counted as rejected, on the session's status when it is open, and answered.
+  // mutex_ held; the caller counted it as received.
+  void reject_locked(Session* session, const char* client, std::uint64_t frame_id, const std::string& map,
+                     const std::string& message);
+  // An accepted frame the session does not take (rate limit, full queue): counted and answered.
+  // The session's mutex held.
+  void drop_locked(Session* session, const fslam_proto_Frame& msg, std::string reason);
 
   const ServerConfig& config_;
   MapRegistry& maps_;
