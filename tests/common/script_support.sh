@@ -17,6 +17,16 @@ stop_started() {
   for pid in "${PIDS[@]}"; do wait "$pid" 2>/dev/null; done
 }
 
+# start_server LOG [PAUSE_MS]: fslam-server on $PREFIX with its maps in $WORK/maps ($BIN, $PREFIX
+# and $WORK are the script's), each step of a save's swap widened to PAUSE_MS (map_files.cpp
+# fault_pause; 0 = none); $SERVER is its PID, recorded in PIDS; true once it serves.
+start_server() {
+  FSLAM_FAULT_SAVE_PAUSE_MS="${2:-0}" "$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" >"$1" 2>&1 &
+  SERVER=$!
+  PIDS+=("$SERVER")
+  wait_for_line "$1" "serving on"
+}
+
 # stop_within PID SECONDS: SIGTERM, then wait up to SECONDS for PID to exit; prints the
 # milliseconds it took, false when it was still running.
 stop_within() {

@@ -17,10 +17,7 @@ cleanup() { stop_started; rm -rf "$WORK"; }
 trap cleanup EXIT
 "$BIN/fslam" synth --out "$WORK/seq" --frames 60 --seed 3 >/dev/null 2>&1 || { echo "synth failed"; exit 1; }
 
-"$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" >"$WORK/server.log" 2>&1 &
-SERVER=$!
-PIDS+=("$SERVER")
-check "the server starts" wait_for_line "$WORK/server.log" "serving on"
+check "the server starts" start_server "$WORK/server.log"
 # Resident memory every 0.25 s while the server lives.
 ( while kill -0 "$SERVER" 2>/dev/null; do awk '/VmRSS/ {print $2}' "/proc/$SERVER/status" 2>/dev/null; sleep 0.25; done ) >"$WORK/rss_kb.txt" &
 SAMPLER=$!

@@ -16,12 +16,6 @@ cleanup() { stop_started; rm -rf "$WORK"; }
 trap cleanup EXIT
 "$BIN/fslam" synth --out "$WORK/seq" --frames 15 --seed 6 >/dev/null 2>&1 || { echo "synth failed"; exit 1; }
 
-start_server() {  # start_server LOG [PAUSE_MS]
-  FSLAM_FAULT_SAVE_PAUSE_MS="${2:-0}" "$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" >"$1" 2>&1 &
-  SERVER=$!
-  PIDS+=("$SERVER")
-  wait_for_line "$1" "serving on"
-}
 
 check "the first server starts" start_server "$WORK/server1.log"
 "$BIN/fslam" stream --dataset "$WORK/seq" --prefix "$PREFIX" --session s --map m --policy queue \

@@ -18,12 +18,6 @@ cleanup() { stop_started; rm -rf "$WORK"; }
 trap cleanup EXIT
 "$BIN/fslam" synth --out "$WORK/seq" --frames 15 --seed 5 >/dev/null 2>&1 || { echo "synth failed"; exit 1; }
 
-start_server() {  # start_server LOG [PAUSE_MS]: a server on map_dir, started directly ($! its PID)
-  FSLAM_FAULT_SAVE_PAUSE_MS="${2:-0}" "$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" >"$1" 2>&1 &
-  SERVER=$!
-  PIDS+=("$SERVER")
-  wait_for_line "$1" "serving on"
-}
 count_in() { sed -n "s/.*loaded map 'm' from .* (\([0-9]*\) Gaussians).*/\1/p" "$1"; }
 
 check "the first server starts" start_server "$WORK/server0.log"

@@ -23,10 +23,7 @@ trap cleanup EXIT
 
 # Features off: the same in CI and on a machine that has the builtin weights; segmentation
 # requests then go through the query path and are answered with the "no features" error.
-"$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" >"$WORK/server.log" 2>&1 &
-SERVER=$!
-PIDS+=("$SERVER")
-check "the server starts (features off)" wait_for_line "$WORK/server.log" "serving on"
+check "the server starts (features off)" start_server "$WORK/server.log"
 timeout $((LOAD_S + 150)) "$BIN/fslam_load" "$PREFIX" "$WORK/seq" "$LOAD_S" 4 --rate 30 --encoding jpeg \
   --queriers 2 --query-rate 2 >"$WORK/report.json" 2>"$WORK/load.err"
 check "the load tool finished" test $? -eq 0
