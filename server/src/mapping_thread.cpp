@@ -1,8 +1,11 @@
 #include "fslam/server/mapping_thread.hpp"
 
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
+
+#include <chrono>
 
 #include <tbb/task_arena.h>
 #include <tbb/task_scheduler_observer.h>
@@ -10,11 +13,16 @@
 namespace fslam::server {
 namespace {
 
-void set_thread_nice(int nice) {
-  // Linux priorities are per thread; failing to raise one back (no CAP_SYS_NICE) only leaves a
-  // TBB worker at the lower priority.
-  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), nice);
+pid_t current_tid() { return static_cast<pid_t>(syscall(SYS_gettid)); }
+
+// Linux scheduling policies are per thread. SCHED_IDLE needs no privilege; failing to go back to
+// SCHED_OTHER (a container's seccomp profile, say) only leaves a thread at the lower priority.
+void set_policy(pid_t tid, bool idle, int nice = 0) {
+  const sched_param param{};
+  sched_setscheduler(tid, idle ? SCHED_IDLE : SCHED_OTHER, &param);
+  if (!idle) setpriority(PRIO_PROCESS, static_cast<id_t>(tid), nice);
 }
+void set_thread_idle(bool idle) { set_policy(current_tid(), idle); }
 
 // Lowers the priority of every TBB worker while it works in the mapping arena.
 class LowPriorityWorkers final : public tbb::task_scheduler_observer {
@@ -22,10 +30,10 @@ class LowPriorityWorkers final : public tbb::task_scheduler_observer {
   explicit LowPriorityWorkers(tbb::task_arena& arena) : tbb::task_scheduler_observer(arena) { observe(true); }
   ~LowPriorityWorkers() override { observe(false); }
   void on_scheduler_entry(bool worker) override {
-    if (worker) set_thread_nice(kRealtimeMappingNice);
+    if (worker) set_thread_idle(true);
   }
   void on_scheduler_exit(bool worker) override {
-    if (worker) set_thread_nice(0);
+    if (worker) set_thread_idle(false);
   }
 };
 
@@ -35,21 +43,52 @@ MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low
                              std::function<void(const core::KeyframeReport&)> on_keyframe,
                              std::function<void(const std::string&)> on_failure) {
   thread_ = std::thread([=] {
-    if (low_priority) set_thread_nice(kRealtimeMappingNice);
+    tid_ = current_tid();
+    if (low_priority) set_thread_idle(true);
     tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
     arena.initialize();
     std::unique_ptr<LowPriorityWorkers> observer;
     if (low_priority) observer = std::make_unique<LowPriorityWorkers>(arena);
+    const auto mapped = [&](const core::KeyframeReport& report) {
+      ++mapped_;
+      if (lifted_.exchange(false)) set_thread_idle(true);  // the starved keyframe is mapped
+      if (on_keyframe) on_keyframe(report);
+    };
     std::string why;
-    const bool ok = arena.execute([&] { return pipeline->run_mapping(on_keyframe, &why); });
+    const bool ok = arena.execute([&] { return pipeline->run_mapping(mapped, &why); });
     if (!ok && on_failure) on_failure(why.empty() ? "mapping failed" : why);
   });
+  if (low_priority) guard_ = std::thread([this, pipeline] { guard_starvation(pipeline); });
+}
+
+void MappingThread::guard_starvation(const core::SlamPipeline* pipeline) {
+  using Clock = std::chrono::steady_clock;
+  std::uint64_t seen = mapped_;
+  Clock::time_point since = Clock::now();
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!stop_.wait_for(lock, std::chrono::milliseconds(250), [&] { return stopping_; })) {
+    const std::uint64_t mapped = mapped_;
+    if (mapped != seen || pipeline->queued_keyframes() == 0) {
+      seen = mapped;
+      since = Clock::now();
+    } else if (!lifted_ && tid_ != 0 &&
+               std::chrono::duration<double>(Clock::now() - since).count() >= kMappingStarvationSeconds) {
+      set_policy(tid_, false, kStarvedMappingNice);  // first: the next keyframe mapped lowers it again
+      lifted_ = true;
+    }
+  }
 }
 
 MappingThread::~MappingThread() { join(); }
 
 void MappingThread::join() {
   if (thread_.joinable()) thread_.join();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+  }
+  stop_.notify_all();
+  if (guard_.joinable()) guard_.join();
 }
 
 }  // namespace fslam::server

@@ -2,22 +2,33 @@
 // pipeline's mapping loop in a TBB arena of its own, and in real time below tracking's priority.
 #pragma once
 
+#include <atomic>
+#include <condition_variable>
 #include <functional>
+#include <mutex>
 #include <string>
 #include <thread>
+
+#include <sys/types.h>
 
 #include "fslam/core/pipeline/slam_pipeline.hpp"
 
 namespace fslam::server {
 
-// Nice value of real-time mapping (its thread and the TBB workers while they work for it): on a
-// shared machine tracking, decoding and the client come first and mapping gets what is left.
-constexpr int kRealtimeMappingNice = 10;
+// Real-time mapping (its thread and the TBB workers while they work for it) runs under Linux's
+// SCHED_IDLE policy: on a shared machine tracking, decoding and the client come first and mapping
+// gets only the time nothing else wants. (Nice 10 still took ~10 % of a core from every thread it
+// shared one with, which doubled frame-to-pose latency with features on; docs/benchmarks.md.)
+// So that an overloaded machine still grows its maps, a keyframe that has waited
+// kMappingStarvationSeconds without any keyframe being mapped lifts the mapping thread to
+// kStarvedMappingNice until the next keyframe is mapped.
+constexpr double kMappingStarvationSeconds = 2.0;
+constexpr int kStarvedMappingNice = 10;
 
 class MappingThread {
  public:
   // Starts pipeline->run_mapping on a new thread with `threads` TBB threads (0: all cores); low_priority
-  // (real time) runs it at kRealtimeMappingNice. on_keyframe as run_mapping's; on_failure is
+  // (real time) runs it under SCHED_IDLE, with the starvation guard above on a second thread. on_keyframe as run_mapping's; on_failure is
   // called once, on that thread, with the reason when mapping fails. The pipeline must outlive
   // the thread (join() or the destructor).
   MappingThread(core::SlamPipeline* pipeline, int threads, bool low_priority,
@@ -31,7 +42,15 @@ class MappingThread {
   void join();
 
  private:
+  void guard_starvation(const core::SlamPipeline* pipeline);
   std::thread thread_;
+  std::thread guard_;                     // low_priority only
+  std::atomic<pid_t> tid_{0};             // the mapping thread's Linux thread id
+  std::atomic<std::uint64_t> mapped_{0};  // keyframes mapped so far
+  std::atomic<bool> lifted_{false};       // the guard raised the mapping thread
+  std::mutex mutex_;
+  std::condition_variable stop_;
+  bool stopping_ = false;  // guarded by mutex_
 };
 
 }  // namespace fslam::server
