@@ -455,6 +455,8 @@ void Client::listen() {
       update.map_version = st.map_version;
       update.frames_tracked = st.frames_tracked;
       update.text_queries = st.text_queries;
+      update.mapping_queue = st.mapping_queue;
+      update.keyframes_left_out = st.keyframes_left_out;
       std::lock_guard<std::mutex> lock(callback_mutex_);
       if (status_callback_) status_callback_(update);
     });

@@ -309,6 +309,8 @@ std::vector<SessionReport> Sessions::reports() const {
     st.track_ms_p99 = p(s->track_ms, 0.99);
     st.map_ms_p50 = p(s->map_ms, 0.5);
     st.map_ms_p99 = p(s->map_ms, 0.99);
+    st.mapping_queue = static_cast<std::uint32_t>(s->map->pipeline->queued_keyframes());
+    st.keyframes_left_out = s->map->pipeline->keyframes_left_out();
     reports.push_back(std::move(r));
   }
   return reports;

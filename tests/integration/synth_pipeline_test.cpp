@@ -122,6 +122,36 @@ TEST_F(SynthPipeline, TrackSequenceStartsAtGroundTruthAndMatchesTheCommand) {
   }
 }
 
+// Real time with the mapper not keeping up (here: not running at all): at most
+// max_queued_keyframes wait, every keyframe beyond is counted as left out, and tracking goes on.
+TEST_F(SynthPipeline, RealTimeKeyframeQueueIsBoundedAndCountsWhatItLeavesOut) {
+  std::string why;
+  core::DatasetOptions options;
+  ASSERT_TRUE(core::FrameSelection::parse("0:60", &options.frames, &why)) << why;
+  const auto dataset = core::open_dataset(dir_, options, &why);
+  ASSERT_TRUE(dataset) << why;
+  core::PipelineConfig config;
+  config.realtime = true;
+  config.max_queued_keyframes = 3;
+  core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
+  std::size_t keyframes = 0;
+  for (std::size_t i = 0; i < dataset->size(); ++i) {
+    core::RgbdFrame frame;
+    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
+    core::TrackingResult result;
+    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    keyframes += result.keyframe ? 1 : 0;
+    EXPECT_LE(pipeline.queued_keyframes(), 3u);
+  }
+  ASSERT_GT(keyframes, 5u) << "the sequence must make more keyframes than the bound";
+  EXPECT_EQ(pipeline.queued_keyframes(), 3u);
+  EXPECT_EQ(pipeline.keyframes_left_out(), keyframes - 3);
+  pipeline.finish();  // the three that waited are still mapped
+  ASSERT_TRUE(pipeline.run_mapping(nullptr, &why)) << why;
+  EXPECT_EQ(pipeline.mapper().keyframe_count(), 3u);
+  EXPECT_EQ(pipeline.queued_keyframes(), 0u);
+}
+
 // Tracking and mapping through the real binary: every output written, the synthetic room's
 // held-out views rendered well, and the written map resumed.
 TEST_F(SynthPipeline, RunTracksMapsAndResumes) {

@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <utility>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/tracking/keyframe_policy.hpp"
 
 namespace fslam::core {
 
@@ -13,6 +15,7 @@ bool PipelineConfig::is_valid(std::string* why) const {
   if (min_iterations_when_behind < 0 || idle_iterations < 0) {
     return fail(why, "pipeline: iteration counts must be >= 0");
   }
+  if (max_queued_keyframes < 0) return fail(why, "pipeline: max_queued_keyframes must be >= 0 (0: no bound)");
   return features.is_valid(why);
 }
 
@@ -143,6 +146,7 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
                                                [](const QueuedKeyframe& q) { return q.pyramid != nullptr; });
       if (!pyramid_waiting) queued.pyramid = std::move(prepared.pyramid);
       queue_.push_back(std::move(queued));
+      bound_queue_locked();
     }
     wake_.notify_one();
   }
@@ -170,6 +174,28 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;
   ++map_target_serial_;
+}
+
+void SlamPipeline::bound_queue_locked() {
+  const std::size_t bound = static_cast<std::size_t>(config_.max_queued_keyframes);
+  if (!config_.realtime || bound == 0 || queue_.size() <= bound) return;
+  // The waiting keyframe (never the oldest, the mapper's next) that moved least from the one
+  // before it, in units of the keyframe thresholds (eq. keyframe_crit): what the map loses least by.
+  const KeyframeConfig& kc = config_.tracker.keyframe;
+  const auto redundancy = [&](std::size_t i) {
+    const PoseMotion m = pose_motion(queue_[i - 1].keyframe.T_world_camera, queue_[i].keyframe.T_world_camera);
+    return m.translation / kc.translation + m.rotation / (kc.rotation_deg * M_PI / 180.0);
+  };
+  std::size_t drop = 1;
+  for (std::size_t i = 2; i < queue_.size(); ++i)
+    if (redundancy(i) < redundancy(drop)) drop = i;
+  queue_.erase(queue_.begin() + static_cast<std::ptrdiff_t>(drop));
+  ++keyframes_left_out_;
+}
+
+std::uint64_t SlamPipeline::keyframes_left_out() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return keyframes_left_out_;
 }
 
 void SlamPipeline::finish() {

@@ -84,6 +84,8 @@ struct StatusUpdate {
   std::string last_skip_reason, frame_policy;  // frame_policy: "live" or "queue"
   float queue_ms_p50 = 0, queue_ms_p99 = 0;    // per frame: accepted -> tracking starts
   std::uint64_t map_gaussians = 0, resident_bytes = 0;
+  std::uint32_t mapping_queue = 0;       // keyframes waiting for the mapper
+  std::uint64_t keyframes_left_out = 0;  // real time: keyframes the mapper never got
   float decode_ms_p50 = 0, decode_ms_p99 = 0;  // per frame
   float track_ms_p50 = 0, track_ms_p99 = 0;    // per frame
   float map_ms_p50 = 0, map_ms_p99 = 0;        // per keyframe

@@ -29,6 +29,11 @@ struct PipelineConfig {
   bool realtime = false;
   int min_iterations_when_behind = 2;
   int idle_iterations = 5;
+  // Real-time mode: at most this many keyframes wait for the mapper (each holds the frame's colour
+  // and depth, ~2 MB at 640x480). Past it the most redundant waiting keyframe -- the one that moved
+  // least from the keyframe before it -- is left out of the map (the tracker keeps it) and
+  // counted, so memory stays bounded when tracking outruns mapping. 0: no bound.
+  int max_queued_keyframes = 16;
   // Image features distilled into the Gaussians (off while features.autoencoder_path is empty).
   LatentFeaturesConfig features;
   // With features on, the tracker registers with the feature-guided weights of eq. feat_gicp:
@@ -108,6 +113,8 @@ class SlamPipeline {
   Mapper& mapper() { return mapper_; }
   MapVersions::Version latest_map() { return mapper_.versions().latest(); }
   std::size_t queued_keyframes() const;
+  // Keyframes left out of the map because max_queued_keyframes were waiting.
+  std::uint64_t keyframes_left_out() const;
 
  private:
   PipelineConfig config_;
@@ -135,6 +142,8 @@ class SlamPipeline {
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<QueuedKeyframe> queue_;
+  std::uint64_t keyframes_left_out_ = 0;  // guarded by mutex_
+  void bound_queue_locked();
   bool finished_ = false;
 };
 
