@@ -1,11 +1,13 @@
 #include "fslam/server/mapping_thread.hpp"
 
+#include <pthread.h>
 #include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
 
 #include <chrono>
+#include <ctime>
 
 #include <tbb/task_arena.h>
 #include <tbb/task_scheduler_observer.h>
@@ -50,7 +52,6 @@ MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low
     std::unique_ptr<LowPriorityWorkers> observer;
     if (low_priority) observer = std::make_unique<LowPriorityWorkers>(arena);
     const auto mapped = [&](const core::KeyframeReport& report) {
-      ++mapped_;
       if (lifted_.exchange(false)) set_thread_idle(true);  // the starved keyframe is mapped
       if (on_keyframe) on_keyframe(report);
     };
@@ -63,18 +64,32 @@ MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low
 
 void MappingThread::guard_starvation(const core::SlamPipeline* pipeline) {
   using Clock = std::chrono::steady_clock;
-  std::uint64_t seen = mapped_;
+  clockid_t cpu_clock{};
+  if (pthread_getcpuclockid(thread_.native_handle(), &cpu_clock) != 0) return;
+  const auto cpu_seconds = [&] {
+    timespec ts{};
+    clock_gettime(cpu_clock, &ts);
+    return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+  };
+  // Starved: a keyframe waited the whole window and the mapping thread ran for under
+  // kStarvedCpuShare of it (slow mapping of a big keyframe is not starvation).
+  constexpr double kStarvedCpuShare = 0.05;
   Clock::time_point since = Clock::now();
+  double cpu_since = cpu_seconds();
   std::unique_lock<std::mutex> lock(mutex_);
   while (!stop_.wait_for(lock, std::chrono::milliseconds(250), [&] { return stopping_; })) {
-    const std::uint64_t mapped = mapped_;
-    if (mapped != seen || pipeline->queued_keyframes() == 0) {
-      seen = mapped;
+    const double window = std::chrono::duration<double>(Clock::now() - since).count();
+    if (lifted_ || pipeline->queued_keyframes() == 0) {
       since = Clock::now();
-    } else if (!lifted_ && tid_ != 0 &&
-               std::chrono::duration<double>(Clock::now() - since).count() >= kMappingStarvationSeconds) {
-      set_policy(tid_, false, kStarvedMappingNice);  // first: the next keyframe mapped lowers it again
-      lifted_ = true;
+      cpu_since = cpu_seconds();
+    } else if (window >= kMappingStarvationSeconds) {
+      const double share = (cpu_seconds() - cpu_since) / window;
+      if (share < kStarvedCpuShare && tid_ != 0) {
+        set_policy(tid_, false, kStarvedMappingNice);  // first: the next keyframe mapped lowers it again
+        lifted_ = true;
+      }
+      since = Clock::now();
+      cpu_since = cpu_seconds();
     }
   }
 }

@@ -66,6 +66,7 @@ struct Sessions::Session {
   std::string last_drop_reason, last_skip_reason;
   // The latest stage times, for p50 / p99 (each bounded to kTimingWindow entries).
   std::deque<double> decode_ms, queue_ms, track_ms, map_ms;
+  bool at_capacity_reported = false;  // mapper.max_gaussians reached, and said so
 };
 
 Sessions::Sessions(const ServerConfig& config, MapRegistry& maps, const Replies& replies,
@@ -163,10 +164,17 @@ void Sessions::start_threads(Session* raw) {
   }
   raw->mapping = std::make_unique<MappingThread>(
       raw->map->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
-      [raw](const core::KeyframeReport& report) {
+      [this, raw](const core::KeyframeReport& report) {
         const core::RefinementStats& r = report.refinement;
         std::lock_guard<std::mutex> lock(raw->mutex);
         record(&raw->map_ms, r.insert_ms + r.optimise_ms + r.prune_ms);
+        if (r.at_capacity && !raw->at_capacity_reported) {
+          // Tracking goes on and the map keeps being optimised; said once per session.
+          raw->at_capacity_reported = true;
+          log_("map '" + raw->map->name + "' reached mapper.max_gaussians (" +
+               std::to_string(config_.pipeline.mapper.max_gaussians) +
+               " Gaussians): new surface is no longer added, the map is still optimised");
+        }
       },
       [this, raw](const std::string& mwhy) {
         // Tracking goes on; clients learn that the map stopped growing, and why.

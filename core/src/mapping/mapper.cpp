@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <unordered_set>
 #include <utility>
 
@@ -37,6 +38,7 @@ float logit(float p) { return std::log(p / (1.0f - p)); }
 bool MapperConfig::is_valid(std::string* why) const {
   if (sh_degree < 0 || sh_degree > kMaxShDegree) return fail(why, "mapper: sh_degree must be 0..3");
   if (feature_dim < 0) return fail(why, "mapper: feature_dim must be >= 0");
+  if (max_gaussians < 0) return fail(why, "mapper: max_gaussians must be >= 0 (0: no bound)");
   if (!(training_scale > 0.0 && training_scale <= 1.0)) {
     return fail(why, "mapper: training_scale must be in (0, 1]");
   }
@@ -173,7 +175,10 @@ void Mapper::insert_one(const StoredKeyframe& kf, int u, int v, const Eigen::Vec
                  f.empty() ? nullptr : f.data(), filter);
 }
 
-std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input) {
+std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input, bool* at_capacity) {
+  const std::size_t capacity = config_.max_gaussians > 0 ? static_cast<std::size_t>(config_.max_gaussians)
+                                                         : std::numeric_limits<std::size_t>::max();
+  const auto full = [&] { return *at_capacity = map_.size() >= capacity; };
   const int W = kf.view.camera.width, H = kf.view.camera.height;
   RenderResult rendered;
   const bool have_map = !map_.empty();
@@ -218,6 +223,7 @@ std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf, const MapperKeyfr
       const int v = static_cast<int>(std::lround(fy * p_cam.y() / z + cy));
       if (u < 0 || v < 0 || u >= W || v >= H) continue;
       if (!occupied.insert(cell_of(src.means[i].data())).second) continue;
+      if (full()) break;
       const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> eig(src.covariances[i]);
       const Eigen::Vector3f n = eig.eigenvectors().col(0);  // smallest eigenvalue first
       const float slant = std::max(0.25f, std::abs((Rt * n).dot(p_cam.normalized())));
@@ -226,8 +232,8 @@ std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf, const MapperKeyfr
     }
   } else {
     const int stride = config_.insert_stride;
-    for (int v = stride / 2; v < H; v += stride) {
-      for (int u = stride / 2; u < W; u += stride) {
+    for (int v = stride / 2; v < H && !full(); v += stride) {
+      for (int u = stride / 2; u < W && !full(); u += stride) {
         const float z = kf.depth.at(0, v, u);
         if (z <= 0.0f) continue;
         if (have_map && covered(rendered, u, v, z)) continue;
@@ -404,7 +410,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   StoredKeyframe kf;
   if (!store(keyframe, &kf, why)) return false;
   auto t0 = std::chrono::steady_clock::now();
-  s.inserted = insert_gaussians(kf, keyframe);
+  s.inserted = insert_gaussians(kf, keyframe, &s.at_capacity);
   keyframes_.push_back(std::move(kf));
   s.insert_ms = ms_since(t0);
 

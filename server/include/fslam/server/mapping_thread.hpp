@@ -19,9 +19,9 @@ namespace fslam::server {
 // SCHED_IDLE policy: on a shared machine tracking, decoding and the client come first and mapping
 // gets only the time nothing else wants. (Nice 10 still took ~10 % of a core from every thread it
 // shared one with, which doubled frame-to-pose latency with features on; docs/benchmarks.md.)
-// So that an overloaded machine still grows its maps, a keyframe that has waited
-// kMappingStarvationSeconds without any keyframe being mapped lifts the mapping thread to
-// kStarvedMappingNice until the next keyframe is mapped.
+// So that an overloaded machine still grows its maps, a mapping thread that got under 5 % of a
+// core for kMappingStarvationSeconds while a keyframe waited is lifted to kStarvedMappingNice
+// until it has mapped the next keyframe.
 constexpr double kMappingStarvationSeconds = 2.0;
 constexpr int kStarvedMappingNice = 10;
 
@@ -46,7 +46,6 @@ class MappingThread {
   std::thread thread_;
   std::thread guard_;                     // low_priority only
   std::atomic<pid_t> tid_{0};             // the mapping thread's Linux thread id
-  std::atomic<std::uint64_t> mapped_{0};  // keyframes mapped so far
   std::atomic<bool> lifted_{false};       // the guard raised the mapping thread
   std::mutex mutex_;
   std::condition_variable stop_;

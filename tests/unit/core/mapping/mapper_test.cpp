@@ -157,6 +157,26 @@ TEST(Mapper, InsertsOnlyWhereTheMapDoesNotExplainTheKeyframe) {
   EXPECT_LT(b.inserted, a.inserted / 10) << "the same view again is already explained";
 }
 
+// mapper.max_gaussians bounds the map: insertion stops there and says so; the next keyframe of
+// new surface adds nothing.
+TEST(Mapper, InsertionStopsAtMaxGaussians) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.prune_percentile_mapping = config.prune_percentile_tracking = 0.0;
+  config.min_opacity = 0.0f;
+  config.max_gaussians = 3000;
+  Mapper mapper(config, make_cpu_rasterizer());
+  std::string why;
+  RefinementStats a, b;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(12), &a, &why)) << why;
+  EXPECT_EQ(a.inserted, 3000u) << "the unbounded mapper inserts over 5000 here";
+  EXPECT_TRUE(a.at_capacity);
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(30), &b, &why)) << why;
+  EXPECT_EQ(b.inserted, 0u);
+  EXPECT_TRUE(b.at_capacity);
+  EXPECT_LE(mapper.map().size(), 3000u);
+}
+
 TEST(Mapper, ImportancePruningRemovesAtMostThePercentileOfNewGaussians) {
   Fixture f;
   MapperConfig config = small_config();

@@ -78,6 +78,10 @@ struct MapperConfig {
   float initial_opacity = 0.7f;
   float initial_scale_factor = 0.75f; // in-plane sigma = factor * lattice spacing on the surface
   float initial_thickness = 0.1f;     // normal sigma = thickness * in-plane sigma
+  // A map's bound (issue 23: a client cannot exhaust the server's memory): at this many Gaussians
+  // a keyframe inserts nothing new (RefinementStats::at_capacity) and optimisation and pruning go
+  // on. ~1 KiB each in a live session (docs/reliability.md). 0: no bound.
+  int max_gaussians = 2000000;
   // Refinement round per keyframe: a cap on gradient steps (the paper's trade-off between
   // photometric convergence and drift), sampling the newest keyframe with this probability
   // and otherwise any keyframe uniformly (chosen on redkitchen 0-299, docs/mapping.md).
@@ -138,6 +142,7 @@ struct RefinementStats {
   std::size_t pruned_standard = 0;
   int iterations = 0;
   bool mapping_keyframe = false;
+  bool at_capacity = false;  // insertion stopped at MapperConfig::max_gaussians
   MappingLosses last_losses;
   double insert_ms = 0, optimise_ms = 0, prune_ms = 0;
 };
@@ -186,7 +191,7 @@ class Mapper {
                  const Eigen::Isometry3d& T_world_camera, StoredKeyframe* out,
                  std::string* why) const;
   bool refine_view(const StoredKeyframe& kf, StoredKeyframe* out, std::string* why) const;
-  std::size_t insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input);
+  std::size_t insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input, bool* at_capacity);
   // Appends one Gaussian seen by `kf` at training pixel (u, v) and depth z: observed point
   // p_world, surface normal n_world, sigmas in and across the surface (metres), colour and
   // features from the keyframe's images. sh: scratch of sh_per_gaussian() values.
