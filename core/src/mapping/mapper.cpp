@@ -39,6 +39,8 @@ bool MapperConfig::is_valid(std::string* why) const {
   if (sh_degree < 0 || sh_degree > kMaxShDegree) return fail(why, "mapper: sh_degree must be 0..3");
   if (feature_dim < 0) return fail(why, "mapper: feature_dim must be >= 0");
   if (max_gaussians < 0) return fail(why, "mapper: max_gaussians must be >= 0 (0: no bound)");
+  if (!(revisit_translation >= 0.0) || !(revisit_rotation_deg >= 0.0))
+    return fail(why, "mapper: revisit_translation and revisit_rotation_deg must be >= 0 (0: keep every keyframe)");
   if (!(training_scale > 0.0 && training_scale <= 1.0)) {
     return fail(why, "mapper: training_scale must be in (0, 1]");
   }
@@ -411,6 +413,23 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   if (!store(keyframe, &kf, why)) return false;
   auto t0 = std::chrono::steady_clock::now();
   s.inserted = insert_gaussians(kf, keyframe, &s.at_capacity);
+  if (config_.revisit_translation > 0.0 && config_.revisit_rotation_deg > 0.0) {
+    // The stored keyframe this one revisits, if any (the nearest in threshold units).
+    double best = 2.0;
+    auto revisited = keyframes_.end();
+    for (auto it = keyframes_.begin(); it != keyframes_.end(); ++it) {
+      const PoseMotion m = pose_motion(it->view.T_camera_world.inverse(), keyframe.T_world_camera);
+      if (m.translation >= config_.revisit_translation ||
+          m.rotation * 180.0 / M_PI >= config_.revisit_rotation_deg) continue;
+      const double score = m.translation / config_.revisit_translation +
+                           m.rotation * 180.0 / M_PI / config_.revisit_rotation_deg;
+      if (score < best) best = score, revisited = it;
+    }
+    if (revisited != keyframes_.end()) {
+      keyframes_.erase(revisited);  // the newest stays last (sample_keyframe)
+      s.replaced_keyframe = true;
+    }
+  }
   keyframes_.push_back(std::move(kf));
   s.insert_ms = ms_since(t0);
 

@@ -13,6 +13,7 @@
 #include "fslam/core/eval/image_metrics.hpp"
 #include "fslam/core/mapping/mapper.hpp"
 #include "fslam/core/synth/synthetic_scene.hpp"
+#include "fslam/core/tracking/keyframe_policy.hpp"
 
 namespace fslam::core {
 namespace {
@@ -175,6 +176,32 @@ TEST(Mapper, InsertionStopsAtMaxGaussians) {
   EXPECT_EQ(b.inserted, 0u);
   EXPECT_TRUE(b.at_capacity);
   EXPECT_LE(mapper.map().size(), 3000u);
+}
+
+// A keyframe that revisits a stored keyframe's pose (within revisit_translation and
+// revisit_rotation_deg) takes its place; one from elsewhere is added; 0 keeps every keyframe.
+TEST(Mapper, RevisitingKeyframeReplacesTheStoredOne) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.iterations_per_keyframe = 2;
+  std::string why;
+  const auto stored_after = [&](const MapperConfig& c, std::vector<std::size_t> frames, bool* replaced) {
+    Mapper mapper(c, make_cpu_rasterizer());
+    RefinementStats s;
+    for (std::size_t k : frames) EXPECT_TRUE(mapper.add_keyframe(f.keyframe(k), &s, &why)) << why;
+    *replaced = s.replaced_keyframe;
+    return mapper.keyframe_count();
+  };
+  const double step = pose_motion(f.trajectory[12].T_world_camera, f.trajectory[30].T_world_camera).translation;
+  ASSERT_GT(step, config.revisit_translation) << "frames 12 and 30 must be apart";
+  bool replaced = false;
+  EXPECT_EQ(stored_after(config, {12, 30, 12}, &replaced), 2u);
+  EXPECT_TRUE(replaced);
+  EXPECT_EQ(stored_after(config, {12, 30}, &replaced), 2u);
+  EXPECT_FALSE(replaced);
+  config.revisit_translation = 0.0;
+  EXPECT_EQ(stored_after(config, {12, 30, 12}, &replaced), 3u);
+  EXPECT_FALSE(replaced);
 }
 
 TEST(Mapper, ImportancePruningRemovesAtMostThePercentileOfNewGaussians) {
