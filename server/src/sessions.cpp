@@ -156,6 +156,9 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_pipeline(std::string* why) co
 
 // The threads hold `raw`: the session outlives them (finish_session joins them).
 void Sessions::start_threads(Session* raw) {
+  // Before the open is answered, so that a live session's first frames are not skipped while the
+  // tracking encoder is made (its first frame is the map's origin).
+  raw->map->pipeline->warm_up();
   if (config_.pipelined_tracking) {
     raw->preparing = std::thread([this, raw] { run_on_one_thread([&] { prepare_frames(raw); }); });
     raw->tracking = std::thread([this, raw] { run_on_one_thread([&] { track_frames(raw); }); });

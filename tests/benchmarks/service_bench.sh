@@ -62,7 +62,9 @@ DATASET_ARGS=()
 [[ -f "$DATASET/camera-intrinsics.txt" || -n "$(ls "$DATASET"/frame-000000.color.* 2>/dev/null)" ]] &&
   DATASET_ARGS+=(--config "$ROOT/configs/presets/seven_scenes.yaml")
 SERVER_ARGS=("${EXTRA[@]}")
-TRACK_ARGS=("${EXTRA[@]}")
+# fslam track with the server's real-time tracking encoder input (server.hpp realtime_pipeline),
+# so that the in-process run is the same tracker; a --set of the key overrides both.
+TRACK_ARGS=(--set tracking_encoder_input=512 "${EXTRA[@]}")
 if [[ "$FEATURES" != off ]]; then
   weights="$FEATURES"
   if [[ "$FEATURES" == auto ]]; then

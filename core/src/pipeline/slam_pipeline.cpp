@@ -15,6 +15,13 @@ bool PipelineConfig::is_valid(std::string* why) const {
   if (min_iterations_when_behind < 0 || idle_iterations < 0) {
     return fail(why, "pipeline: iteration counts must be >= 0");
   }
+  if (tracking_encoder_input != 0) {
+    BuiltinFeatureConfig tracking;
+    tracking.input_width = tracking.input_height = tracking_encoder_input;
+    if (features.encoder.backend != FeatureBackend::builtin)
+      return fail(why, "pipeline: tracking_encoder_input applies to the builtin encoder only (0 for onnx)");
+    if (!tracking.is_valid(why)) return fail(why, "pipeline: tracking_encoder_input: " + (why ? *why : std::string()));
+  }
   if (max_queued_keyframes < 0) return fail(why, "pipeline: max_queued_keyframes must be >= 0 (0: no bound)");
   return features.is_valid(why);
 }
@@ -71,6 +78,28 @@ class SlamPipeline::PyramidPool {
   std::vector<std::unique_ptr<FeaturePyramid>> free_;
 };
 
+bool SlamPipeline::make_tracking_features(std::string* why) {
+  if (tracking_features_) return true;
+  LatentFeaturesConfig tracking = config_.features;
+  if (config_.tracking_encoder_input > 0) {
+    tracking.encoder.builtin.input_width = tracking.encoder.builtin.input_height = config_.tracking_encoder_input;
+  }
+  tracking_features_ = LatentFeatures::create(tracking, why);
+  return tracking_features_ != nullptr;
+}
+
+void SlamPipeline::warm_up() {
+  if (!features_ || !config_.track_with_features) return;
+  std::string why;
+  if (!make_tracking_features(&why)) return;
+  const cv::Mat blank(480, 640, CV_8UC3, cv::Scalar(128, 128, 128));
+  const auto pyramid = PyramidPool::acquire(pyramids_);
+  const int stride = config_.tracker.preprocess.stride;
+  PlanarImage latent;
+  if (tracking_features_->encode(blank, pyramid.get(), &why))
+    tracking_features_->latent_image(*pyramid, 640 / stride, 480 / stride, &latent, &why);
+}
+
 bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::string* why) {
   out->frame = std::move(frame);
   out->latent = PlanarImage();
@@ -79,10 +108,7 @@ bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::strin
   // The frame's latent, one per lattice cell of the tracker's source points (eq. feat_dist).
   if (features_ && config_.track_with_features) {
     const auto t0 = std::chrono::steady_clock::now();
-    if (!tracking_features_) {
-      tracking_features_ = LatentFeatures::create(config_.features, why);
-      if (!tracking_features_) return false;
-    }
+    if (!make_tracking_features(why)) return false;
     // Encoded once: the tracker samples the latent on its lattice, and a keyframe hands the
     // pyramid on to the mapper for its latent target.
     out->pyramid = PyramidPool::acquire(pyramids_);
@@ -144,7 +170,7 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
       // and the mapper encodes its colour itself: at most two pyramids wait for the mapper.
       const bool pyramid_waiting = std::any_of(queue_.begin(), queue_.end(),
                                                [](const QueuedKeyframe& q) { return q.pyramid != nullptr; });
-      if (!pyramid_waiting) queued.pyramid = std::move(prepared.pyramid);
+      if (!pyramid_waiting && tracking_pyramid_is_mappers()) queued.pyramid = std::move(prepared.pyramid);
       queue_.push_back(std::move(queued));
       bound_queue_locked();
     }
@@ -174,6 +200,12 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;
   ++map_target_serial_;
+}
+
+bool SlamPipeline::tracking_pyramid_is_mappers() const {
+  const BuiltinFeatureConfig& mapper = config_.features.encoder.builtin;
+  return config_.tracking_encoder_input == 0 ||
+         (mapper.input_width == config_.tracking_encoder_input && mapper.input_height == config_.tracking_encoder_input);
 }
 
 void SlamPipeline::bound_queue_locked() {

@@ -40,6 +40,10 @@ struct PipelineConfig {
   // each frame's latent on the tracker's lattice (the encoder and phi on every frame, on the
   // tracking thread). Off: geometry and opacity only, and the encoder runs on keyframes alone.
   bool track_with_features = true;
+  // Builtin encoder only: the tracking thread encodes each frame at this square input (pixels, a
+  // multiple of 16) instead of features.encoder.builtin's; keyframes are then encoded again at
+  // the mapper's input on the mapping thread. 0: one encoding at the mapper's input, shared.
+  int tracking_encoder_input = 0;
   // Off: tracking alone (`fslam track`): keyframes are not handed to a mapper. Not a setting.
   bool mapping = true;
   bool is_valid(std::string* why = nullptr) const;
@@ -84,6 +88,10 @@ class SlamPipeline {
   // frame k registers on another (the tracker's state is touched by track_prepared alone):
   // the frame's latent and source Gaussians (encoder, phi, preprocessing) ...
   bool prepare_frame(RgbdFrame frame, PreparedFrame* out, std::string* why);
+  // Before the first frame (then the preparing thread may take over): makes the tracking encoder and runs it once
+  // on a blank 640x480 image, so that the first frames of a live session are not skipped while
+  // its buffers are allocated. A failure is left for the first frame to report.
+  void warm_up();
   // ... then feature-guided GICP, the keyframe decision and the hand-over to mapping. Calls of
   // each step come one at a time, and track_prepared in frame order. The trajectory starts at the
   // first frame's ground-truth pose when it has one (evaluation runs and streams), else at the
@@ -127,6 +135,9 @@ class SlamPipeline {
     std::shared_ptr<FeaturePyramid> pyramid;
   };
   class PyramidPool;
+  // The tracking encoder's pyramid is also the mapper's (tracking_encoder_input 0 or the same).
+  bool tracking_pyramid_is_mappers() const;
+  bool make_tracking_features(std::string* why);
   void publish_map_target(const MapperKeyframe& kf);
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
   // The preparing thread's own encoder (LatentFeatures is not thread-safe), made at the first
