@@ -110,7 +110,8 @@ bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::strin
     const auto t0 = std::chrono::steady_clock::now();
     if (!make_tracking_features(why)) return false;
     // Encoded once: the tracker samples the latent on its lattice, and a keyframe hands the
-    // pyramid on to the mapper for its latent target.
+    // pyramid on to the mapper for its latent target (unless tracking_encoder_input encodes
+    // frames at another input than the mapper's: the mapper then encodes the keyframe itself).
     out->pyramid = PyramidPool::acquire(pyramids_);
     const int stride = config_.tracker.preprocess.stride;
     const PinholeCamera& camera = out->frame.camera;
