@@ -420,9 +420,8 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
     for (auto it = keyframes_.begin(); it != keyframes_.end(); ++it) {
       const PoseMotion m = pose_motion(it->view.T_camera_world.inverse(), keyframe.T_world_camera);
       if (m.translation >= config_.revisit_translation ||
-          m.rotation * 180.0 / M_PI >= config_.revisit_rotation_deg) continue;
-      const double score = m.translation / config_.revisit_translation +
-                           m.rotation * 180.0 / M_PI / config_.revisit_rotation_deg;
+          m.rotation >= config_.revisit_rotation_deg * M_PI / 180.0) continue;
+      const double score = motion_in_thresholds(m, config_.revisit_translation, config_.revisit_rotation_deg);
       if (score < best) best = score, revisited = it;
     }
     if (revisited != keyframes_.end()) {

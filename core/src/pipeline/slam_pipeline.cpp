@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cmath>
 #include <utility>
 
 #include "fslam/core/error.hpp"
@@ -78,26 +77,33 @@ class SlamPipeline::PyramidPool {
   std::vector<std::unique_ptr<FeaturePyramid>> free_;
 };
 
-bool SlamPipeline::make_tracking_features(std::string* why) {
-  if (tracking_features_) return true;
-  LatentFeaturesConfig tracking = config_.features;
-  if (config_.tracking_encoder_input > 0) {
-    tracking.encoder.builtin.input_width = tracking.encoder.builtin.input_height = config_.tracking_encoder_input;
+bool SlamPipeline::encode_for_tracking(const cv::Mat& colour, const PinholeCamera& camera,
+                                       std::shared_ptr<FeaturePyramid>* pyramid, PlanarImage* latent,
+                                       std::string* why) {
+  if (!tracking_features_) {
+    LatentFeaturesConfig tracking = config_.features;
+    if (config_.tracking_encoder_input > 0) {
+      tracking.encoder.builtin.input_width = tracking.encoder.builtin.input_height = config_.tracking_encoder_input;
+    }
+    tracking_features_ = LatentFeatures::create(tracking, why);
+    if (!tracking_features_) return false;
   }
-  tracking_features_ = LatentFeatures::create(tracking, why);
-  return tracking_features_ != nullptr;
+  *pyramid = PyramidPool::acquire(pyramids_);
+  const int stride = config_.tracker.preprocess.stride;
+  return tracking_features_->encode(colour, pyramid->get(), why) &&
+         tracking_features_->latent_image(**pyramid, camera.width / stride, camera.height / stride, latent, why);
 }
 
 void SlamPipeline::warm_up() {
-  if (!features_ || !config_.track_with_features) return;
-  std::string why;
-  if (!make_tracking_features(&why)) return;
-  const cv::Mat blank(480, 640, CV_8UC3, cv::Scalar(128, 128, 128));
-  const auto pyramid = PyramidPool::acquire(pyramids_);
-  const int stride = config_.tracker.preprocess.stride;
+  if (!features_ || !config_.track_with_features || tracking_features_) return;
+  PinholeCamera camera;
+  camera.width = 640;
+  camera.height = 480;
+  const cv::Mat blank(camera.height, camera.width, CV_8UC3, cv::Scalar(128, 128, 128));
+  std::shared_ptr<FeaturePyramid> pyramid;
   PlanarImage latent;
-  if (tracking_features_->encode(blank, pyramid.get(), &why))
-    tracking_features_->latent_image(*pyramid, 640 / stride, 480 / stride, &latent, &why);
+  std::string why;
+  encode_for_tracking(blank, camera, &pyramid, &latent, &why);
 }
 
 bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::string* why) {
@@ -108,18 +114,10 @@ bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::strin
   // The frame's latent, one per lattice cell of the tracker's source points (eq. feat_dist).
   if (features_ && config_.track_with_features) {
     const auto t0 = std::chrono::steady_clock::now();
-    if (!make_tracking_features(why)) return false;
     // Encoded once: the tracker samples the latent on its lattice, and a keyframe hands the
     // pyramid on to the mapper for its latent target (unless tracking_encoder_input encodes
     // frames at another input than the mapper's: the mapper then encodes the keyframe itself).
-    out->pyramid = PyramidPool::acquire(pyramids_);
-    const int stride = config_.tracker.preprocess.stride;
-    const PinholeCamera& camera = out->frame.camera;
-    if (!tracking_features_->encode(out->frame.colour, out->pyramid.get(), why) ||
-        !tracking_features_->latent_image(*out->pyramid, camera.width / stride, camera.height / stride,
-                                          &out->latent, why)) {
-      return false;
-    }
+    if (!encode_for_tracking(out->frame.colour, out->frame.camera, &out->pyramid, &out->latent, why)) return false;
     out->features_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   }
@@ -216,12 +214,15 @@ void SlamPipeline::bound_queue_locked() {
   // before it, in units of the keyframe thresholds (eq. keyframe_crit): what the map loses least by.
   const KeyframeConfig& kc = config_.tracker.keyframe;
   const auto redundancy = [&](std::size_t i) {
-    const PoseMotion m = pose_motion(queue_[i - 1].keyframe.T_world_camera, queue_[i].keyframe.T_world_camera);
-    return m.translation / kc.translation + m.rotation / (kc.rotation_deg * M_PI / 180.0);
+    return motion_in_thresholds(pose_motion(queue_[i - 1].keyframe.T_world_camera, queue_[i].keyframe.T_world_camera),
+                                kc.translation, kc.rotation_deg);
   };
   std::size_t drop = 1;
-  for (std::size_t i = 2; i < queue_.size(); ++i)
-    if (redundancy(i) < redundancy(drop)) drop = i;
+  double least = redundancy(1);
+  for (std::size_t i = 2; i < queue_.size(); ++i) {
+    const double r = redundancy(i);
+    if (r < least) least = r, drop = i;
+  }
   queue_.erase(queue_.begin() + static_cast<std::ptrdiff_t>(drop));
   ++keyframes_left_out_;
 }

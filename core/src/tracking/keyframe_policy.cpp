@@ -30,6 +30,10 @@ bool is_keyframe(const KeyframeConfig& config, const PoseMotion& motion, double 
          rms_residual > config.rms_residual;
 }
 
+double motion_in_thresholds(const PoseMotion& motion, double translation, double rotation_deg) {
+  return motion.translation / translation + motion.rotation / (rotation_deg * kDegToRad);
+}
+
 bool is_mapping_keyframe(const PoseMotion& motion, double min_translation, double min_rotation_deg) {
   return motion.translation >= min_translation || motion.rotation * 180.0 / M_PI >= min_rotation_deg;
 }

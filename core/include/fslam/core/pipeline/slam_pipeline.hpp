@@ -137,10 +137,13 @@ class SlamPipeline {
   class PyramidPool;
   // The tracking encoder's pyramid is also the mapper's (tracking_encoder_input 0 or the same).
   bool tracking_pyramid_is_mappers() const;
-  bool make_tracking_features(std::string* why);
+  // The tracking encoder (made at the first call) on `colour` of `camera`: its pyramid from the
+  // pool, and the latent on the tracker's lattice.
+  bool encode_for_tracking(const cv::Mat& colour, const PinholeCamera& camera,
+                           std::shared_ptr<FeaturePyramid>* pyramid, PlanarImage* latent, std::string* why);
   void publish_map_target(const MapperKeyframe& kf);
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
-  // The preparing thread's own encoder (LatentFeatures is not thread-safe), made at the first
+  // The preparing thread's own encoder (LatentFeatures is not thread-safe), made by warm_up or the first
   // frame when features_ is set and track_with_features is on.
   std::unique_ptr<LatentFeatures> tracking_features_;
   std::shared_ptr<PyramidPool> pyramids_;

@@ -29,6 +29,10 @@ struct PoseMotion {
 // The motion of T_world_current from T_world_reference (both camera-to-world).
 PoseMotion pose_motion(const Eigen::Isometry3d& T_world_reference, const Eigen::Isometry3d& T_world_current);
 
+// A motion in units of a translation (metres) and a rotation (degrees) threshold, summed: below 1
+// for a motion well inside both, 2 at both thresholds. Ranks keyframes by redundancy.
+double motion_in_thresholds(const PoseMotion& motion, double translation, double rotation_deg);
+
 // Eq. keyframe_crit for a frame that moved `motion` from the last keyframe and registered with
 // RMS residual `rms_residual` (metres).
 bool is_keyframe(const KeyframeConfig& config, const PoseMotion& motion, double rms_residual);
