@@ -45,6 +45,9 @@ class LatentFeatures {
   // encode, then latent_image.
   bool latent_image(const cv::Mat& rgb, int width, int height, PlanarImage* out, std::string* why);
   std::string describe() const;
+  // The pretrained autoencoder (never trained here): phi for the latents, the heads for the
+  // decoded L_feat (the mapper trains its own copy's LoRA online).
+  const FeatureAutoencoder& autoencoder() const { return autoencoder_; }
   // None of the calls is thread-safe: each thread keeps its own LatentFeatures.
 
  private:
