@@ -100,6 +100,8 @@ const EnumNames<core::TrackingTarget> kTrackingTargets = {{core::TrackingTarget:
                                                           {core::TrackingTarget::gaussians, "gaussians"}};
 const EnumNames<core::MapperConfig::InsertFrom> kInsertFrom = {
     {core::MapperConfig::InsertFrom::lattice, "lattice"}, {core::MapperConfig::InsertFrom::source, "source"}};
+const EnumNames<core::MapperConfig::FeatureLoss> kFeatureLoss = {
+    {core::MapperConfig::FeatureLoss::decoded, "decoded"}, {core::MapperConfig::FeatureLoss::latent, "latent"}};
 const EnumNames<core::RobustKernel> kRobustKernels = {{core::RobustKernel::none, "none"},
                                                       {core::RobustKernel::huber, "huber"},
                                                       {core::RobustKernel::cauchy, "cauchy"}};
@@ -270,6 +272,8 @@ void add_mapper_fields(SettingsTable<core::PipelineConfig>* f) {
   mapper.add("revisit_rotation_deg", &Mapper::revisit_rotation_deg);
   mapper.add("insert_from", &Mapper::insert_from, kInsertFrom);
   mapper.add("source_min_distance", &Mapper::source_min_distance);
+  mapper.add("feature_loss", &Mapper::feature_loss, kFeatureLoss);
+  mapper.add("feature_samples", &Mapper::feature_samples);
   mapper.add("new_alpha", &Mapper::new_alpha);
   mapper.add("new_depth_margin", &Mapper::new_depth_margin);
   mapper.add("new_depth_relative", &Mapper::new_depth_relative);

@@ -52,6 +52,7 @@ bool MapperConfig::is_valid(std::string* why) const {
     return fail(why, "mapper: initial_opacity must be in (0, 1)");
   }
   if (iterations_per_keyframe < 0) return fail(why, "mapper: iterations_per_keyframe must be >= 0");
+  if (feature_samples < 1) return fail(why, "mapper: feature_samples must be >= 1");
   if (!(prune_percentile_tracking >= 0.0 && prune_percentile_tracking < 1.0 &&
         prune_percentile_mapping >= 0.0 && prune_percentile_mapping < 1.0)) {
     return fail(why, "mapper: pruning percentiles must be in [0, 1)");
@@ -84,9 +85,15 @@ bool Mapper::store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::str
        keyframe.feature_target.channels != config_.feature_dim)) {
     return fail(why, "keyframe: feature target must be [D, h, w] at the training resolution");
   }
+  if (!keyframe.feature_observation.empty() &&
+      (keyframe.feature_observation.width != cam.width || keyframe.feature_observation.height != cam.height ||
+       (decoder_ && keyframe.feature_observation.channels != decoder_->input_dim()))) {
+    return fail(why, "keyframe: feature observation must be of the training image, with the decoder's channels");
+  }
   out->frame_id = keyframe.frame_id;
   out->input_camera = keyframe.camera;
   out->feature_target = keyframe.feature_target;
+  out->feature_observation = keyframe.feature_observation;
   cv::Mat colour, depth;
   cv::resize(keyframe.colour, colour, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_AREA);
   // Nearest neighbour: averaging depth across an edge invents surfaces that are not there.
@@ -133,6 +140,7 @@ bool Mapper::refine_view(const StoredKeyframe& kf, StoredKeyframe* out, std::str
                  why)) {
     return false;
   }
+  out->feature_observation = kf.feature_observation;  // its pixels are scaled onto the view in step
   out->feature_target = PlanarImage();
   if (!kf.feature_target.empty()) {
     const PlanarImage& t = kf.feature_target;
@@ -273,7 +281,8 @@ std::size_t Mapper::sample_keyframe(bool uniform) {
 bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* why) {
   const MappingLossWeights& w = config_.loss;
   RenderSettings settings = config_.render;
-  const bool features = !kf.feature_target.empty() && map_.feature_dim > 0 && w.feature_l1 > 0;
+  const bool decoded = decoded_features(kf);
+  const bool features = (decoded || !kf.feature_target.empty()) && map_.feature_dim > 0 && w.feature_l1 > 0;
   settings.features = features;
   RenderResult r;
   if (!rasterizer_->forward(map_, kf.view, settings, &r, why)) return false;
@@ -282,8 +291,13 @@ bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* 
   // L_rgb (eq. modeling_losses): lambda_1 L1 + lambda_2 (1 - SSIM).
   if (!l1_loss(r.colour, kf.colour, nullptr, w.rgb_l1, &l.rgb_l1, &g.colour, why)) return false;
   if (!ssim_loss(r.colour, kf.colour, nullptr, w.rgb_ssim, &l.rgb_ssim, &g.colour, why)) return false;
-  // L_feat: lambda_f L1 against the encoder's latent target.
-  if (features &&
+  // L_feat (eq. modeling_losses): lambda_f L1 of the decoded latent against the encoder's
+  // pyramid (decoded), or of the latent against phi(u) (latent).
+  if (features && decoded &&
+      !decoded_feature_loss(kf, r.features, w.feature_l1, &l.feature_l1, &g.features, why)) {
+    return false;
+  }
+  if (features && !decoded &&
       !l1_loss(r.features, kf.feature_target, nullptr, w.feature_l1, &l.feature_l1, &g.features, why)) {
     return false;
   }
@@ -337,9 +351,92 @@ bool Mapper::step(const StoredKeyframe& kf, MappingLosses* losses, std::string* 
   grad_map.sh = std::move(grads_.sh);
   grad_map.features = std::move(grads_.features);
   step_gaussian_adam(&adam_, &map_, grad_map, &r.visible);
+  if (features && decoded) decoder_->step_online();  // the heads' LoRA, with its warm-up
   ++step_;
   if (losses != nullptr) *losses = l;
   return true;
+}
+
+bool Mapper::set_feature_decoder(const FeatureAutoencoder& decoder, std::string* why) {
+  if (decoder.latent_dim() != config_.feature_dim) {
+    return fail(why, "mapper: the decoder's latent has " + std::to_string(decoder.latent_dim()) +
+                         " channels, the map's " + std::to_string(config_.feature_dim));
+  }
+  decoder_ = decoder;
+  decoder_->set_mode(AutoencoderMode::online);
+  return true;
+}
+
+const FeatureAutoencoder* Mapper::feature_decoder() const {
+  return config_.feature_loss == MapperConfig::FeatureLoss::decoded && decoder_ ? &*decoder_ : nullptr;
+}
+
+bool Mapper::decoded_features(const StoredKeyframe& kf) const {
+  return feature_decoder() != nullptr && !kf.feature_observation.empty();
+}
+
+namespace {
+
+// The rendered latents [K, D] at an observation's pixels, scaled onto a render of another size
+// (the refinement's); `at` receives each sample's pixel index in the render.
+void gather_latents(const PlanarImage& rendered, const FeatureObservation& obs, std::vector<float>* f,
+                    std::vector<std::size_t>* at) {
+  const int D = rendered.channels, W = rendered.width, H = rendered.height;
+  const float sx = static_cast<float>(W) / static_cast<float>(obs.width);
+  const float sy = static_cast<float>(H) / static_cast<float>(obs.height);
+  f->resize(obs.size() * static_cast<std::size_t>(D));
+  at->resize(obs.size());
+  for (std::size_t k = 0; k < obs.size(); ++k) {
+    const int x = obs.pixels[k] % obs.width, y = obs.pixels[k] / obs.width;
+    const int u = std::min(W - 1, static_cast<int>((static_cast<float>(x) + 0.5f) * sx));
+    const int v = std::min(H - 1, static_cast<int>((static_cast<float>(y) + 0.5f) * sy));
+    (*at)[k] = static_cast<std::size_t>(v) * W + u;
+    for (int c = 0; c < D; ++c) (*f)[k * D + c] = rendered.plane(c)[(*at)[k]];
+  }
+}
+
+}  // namespace
+
+bool Mapper::decoded_feature_loss(const StoredKeyframe& kf, const PlanarImage& rendered, double weight,
+                                  double* loss, PlanarImage* grad, std::string* why) {
+  const FeatureObservation& obs = kf.feature_observation;
+  const int D = map_.feature_dim;
+  if (rendered.channels != D) return fail(why, "mapper: rendered latent has the wrong channel count");
+  std::vector<std::size_t> at;
+  gather_latents(rendered, obs, &f_samples_, &at);
+  obs.samples(decoder_->input_mean(), decoder_->input_std(), &u_samples_);
+  grad_f_samples_.resize(f_samples_.size());
+  const int K = static_cast<int>(obs.size());
+  // ||phi^(l)(f) - F_obs||_1 over the samples, in units of each channel's spread (loss_l1): an
+  // unbiased estimate of the mean over the image's pixels.
+  *loss = weight * decoder_->feature_loss(f_samples_.data(), u_samples_.data(), K, grad_f_samples_.data());
+  *grad = PlanarImage(rendered.width, rendered.height, D);
+  for (int k = 0; k < K; ++k)
+    for (int c = 0; c < D; ++c)
+      grad->plane(c)[at[k]] += static_cast<float>(weight) * grad_f_samples_[static_cast<std::size_t>(k) * D + c];
+  return true;
+}
+
+double Mapper::decoded_feature_error(const RenderView& view, const FeatureObservation& observation,
+                                     const FeatureAutoencoder& decoder, std::string* why) const {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (map_.feature_dim == 0 || map_.empty()) return fail(why, "mapper: the map has no features"), nan;
+  if (decoder.latent_dim() != map_.feature_dim || observation.channels != decoder.input_dim() ||
+      observation.empty()) {
+    return fail(why, "mapper: decoder, observation and map do not match"), nan;
+  }
+  RenderSettings settings = config_.render;
+  settings.features = true;
+  RenderResult r;
+  if (!rasterizer_->forward(map_, view, settings, &r, why)) return nan;
+  std::vector<float> f, u, u_hat;
+  std::vector<std::size_t> at;
+  gather_latents(r.features, observation, &f, &at);
+  observation.samples(decoder.input_mean(), decoder.input_std(), &u);
+  const int K = static_cast<int>(observation.size());
+  u_hat.resize(u.size());
+  decoder.decode(f.data(), K, u_hat.data());
+  return decoder.loss_l1(u_hat.data(), u.data(), K, nullptr);
 }
 
 std::size_t Mapper::prune(double percentile) {
@@ -413,6 +510,8 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   if (!store(keyframe, &kf, why)) return false;
   auto t0 = std::chrono::steady_clock::now();
   s.inserted = insert_gaussians(kf, keyframe, &s.at_capacity);
+  // The decoded L_feat needs the dense latent only for the new Gaussians' initial values.
+  if (decoded_features(kf)) kf.feature_target = PlanarImage();
   if (config_.revisit_translation > 0.0 && config_.revisit_rotation_deg > 0.0) {
     // The stored keyframe this one revisits, if any (the nearest in threshold units).
     double best = 2.0;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <stdexcept>
 #include <utility>
 
 #include "fslam/core/error.hpp"
@@ -43,7 +44,13 @@ SlamPipeline::SlamPipeline(const PipelineConfig& config,
       tracker_(config_.tracker),
       mapper_(config_.mapper, std::move(rasterizer)),
       features_(std::move(features)),
-      pyramids_(std::make_shared<PyramidPool>()) {}
+      pyramids_(std::make_shared<PyramidPool>()) {
+  // The decoded L_feat runs through the heads of the autoencoder that makes the latents.
+  if (features_ && config_.mapper.feature_loss == MapperConfig::FeatureLoss::decoded) {
+    std::string why;
+    if (!mapper_.set_feature_decoder(features_->autoencoder(), &why)) throw std::logic_error(why);
+  }
+}
 
 SlamPipeline::~SlamPipeline() = default;
 
@@ -283,12 +290,21 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
       // The latent target of L_feat (eq. modeling_losses) at the mapper's training resolution.
       const auto t0 = std::chrono::steady_clock::now();
       const PinholeCamera training = kf.camera.scaled(config_.mapper.training_scale);
-      const bool ok =
-          queued.pyramid ? features_->latent_image(*queued.pyramid, training.width, training.height,
-                                                   &kf.feature_target, why)
-                         : features_->latent_image(kf.colour, training.width, training.height,
-                                                   &kf.feature_target, why);
-      if (!ok) return false;
+      if (!queued.pyramid) {
+        queued.pyramid = PyramidPool::acquire(pyramids_);
+        if (!features_->encode(kf.colour, queued.pyramid.get(), why)) return false;
+      }
+      if (!features_->latent_image(*queued.pyramid, training.width, training.height, &kf.feature_target, why)) {
+        return false;
+      }
+      // The decoded L_feat's target: the pyramid at sample pixels (seeded by the frame id).
+      if (const FeatureAutoencoder* decoder = mapper_.feature_decoder();
+          decoder != nullptr &&
+          !observe_features(*queued.pyramid, training.width, training.height, config_.mapper.feature_samples,
+                            static_cast<std::uint32_t>(kf.frame_id), decoder->input_mean(),
+                            decoder->input_std(), &kf.feature_observation, why)) {
+        return false;
+      }
       queued.pyramid.reset();  // back to the pool
       report.features_ms =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();

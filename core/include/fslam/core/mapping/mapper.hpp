@@ -16,6 +16,8 @@
 #include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 
+#include "fslam/core/features/feature_autoencoder.hpp"
+#include "fslam/core/features/feature_observation.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/map/gaussian_map.hpp"
 #include "fslam/core/mapping/adam.hpp"
@@ -113,6 +115,16 @@ struct MapperConfig {
   // rate over the keyframes that see the Gaussian, f of the input images (not of the reduced
   // training renders: that blurred full-resolution renders and cost 0.3 cm depth L1, measured).
   float filter_3d_factor = 0.2f;
+  // L_feat (eq. modeling_losses). `decoded`, the paper's: the rendered latent at the keyframe's
+  // feature_samples pixels, decoded by the heads phi^(l) (set_feature_decoder; their LoRA
+  // adapters train online, one Adam step per mapping step), against the encoder's pyramid there.
+  // `latent`: the rendered latent against phi(u) at every training pixel (before issue 19).
+  // Without a decoder the latent form is used. docs/mapping.md compares the two.
+  enum class FeatureLoss : std::uint8_t { decoded, latent };
+  FeatureLoss feature_loss = FeatureLoss::decoded;
+  // Sample pixels per keyframe for the decoded L_feat (MapperKeyframe::feature_observation),
+  // ~360 B each stored; about one per 3x3 pixels of a 160x120 training image.
+  int feature_samples = 2048;
   RenderSettings render;
   GaussianLearningRates learning_rates;
   MappingLossWeights loss;
@@ -127,7 +139,11 @@ struct MapperKeyframe {
   PinholeCamera camera;  // of colour and depth
   cv::Mat colour;        // [H, W] CV_8UC3 RGB
   cv::Mat depth;         // [H, W] CV_32FC1 metres, 0 = missing
-  PlanarImage feature_target;  // optional [D, h, w] at the training resolution (empty = none)
+  // Optional [D, h, w] at the training resolution (empty = none): phi(u) per pixel, the new
+  // Gaussians' initial latents, and the latent L_feat's target.
+  PlanarImage feature_target;
+  // The decoded L_feat's target (FeatureLoss::decoded): u at sample pixels of the training image.
+  FeatureObservation feature_observation;
   // The tracker's source Gaussians of this frame in world coordinates (insert_from = source),
   // sampled every `source_stride` input pixels; empty: the lattice is used.
   GaussianPoints source_world;
@@ -170,6 +186,16 @@ class Mapper {
   // progress (optional) is called every few steps with (steps done, steps).
   bool refine(int steps, std::string* why,
               const std::function<void(int, int)>& progress = nullptr);
+  // The heads the decoded L_feat runs through (a copy; its LoRA adapters train online from here).
+  // Its latent width must be the map's. Without one, L_feat is the latent form.
+  bool set_feature_decoder(const FeatureAutoencoder& decoder, std::string* why);
+  // The online-adapted heads, or nullptr when L_feat is the latent form.
+  const FeatureAutoencoder* feature_decoder() const;
+  // Mean decoded L_feat (loss_l1, before lambda_f) of the map rendered at `view` against
+  // `observation` (its pixels index an image of the view's aspect), decoded by `decoder`: the
+  // held-out reconstruction error of the heads. NaN + why when it cannot be measured.
+  double decoded_feature_error(const RenderView& view, const FeatureObservation& observation,
+                               const FeatureAutoencoder& decoder, std::string* why) const;
   // Replaces the map (resume from a saved map); keyframes are kept.
   bool set_map(const GaussianMap& map, std::string* why);
 
@@ -190,7 +216,8 @@ class Mapper {
     PlanarImage colour;           // [3, h, w] in [0, 1]
     PlanarImage depth;            // [1, h, w] metres, 0 = missing
     PlanarImage normals;          // [3, h, w] from the observed depth
-    PlanarImage feature_target;   // [D, h, w] or empty
+    PlanarImage feature_target;   // [D, h, w] or empty (dropped after insertion when decoded)
+    FeatureObservation feature_observation;  // the decoded L_feat's target, or empty
     cv::Mat refine_colour;        // CV_8UC3 at refine_scale, empty when not kept
     cv::Mat refine_depth;         // CV_32FC1 metres at refine_scale
   };
@@ -209,6 +236,11 @@ class Mapper {
                   std::vector<float>* sh);
   bool covered(const RenderResult& rendered, int u, int v, float z) const;
   bool step(const StoredKeyframe& kf, MappingLosses* losses, std::string* why);
+  bool decoded_features(const StoredKeyframe& kf) const;
+  // The decoded L_feat of one step: loss (weighted) and its gradient image on the rendered latent
+  // (zero away from the sample pixels); accumulates the LoRA gradients.
+  bool decoded_feature_loss(const StoredKeyframe& kf, const PlanarImage& rendered, double weight,
+                            double* loss, PlanarImage* grad, std::string* why);
   std::size_t prune(double percentile);
   void reset_round();
   void recompute_filter_3d(std::size_t first);
@@ -228,6 +260,8 @@ class Mapper {
   std::vector<std::uint8_t> seen_;
   std::vector<std::uint8_t> new_in_round_;  // [N] inserted by this round's keyframe
   GaussianGradients grads_;
+  std::optional<FeatureAutoencoder> decoder_;  // online heads of the decoded L_feat
+  std::vector<float> f_samples_, u_samples_, grad_f_samples_;  // [K, D], [K, C], [K, D] scratch
   std::optional<Eigen::Isometry3d> last_mapping_keyframe_;
 };
 

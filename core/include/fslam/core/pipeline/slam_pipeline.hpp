@@ -120,6 +120,8 @@ class SlamPipeline {
   const Mapper& mapper() const { return mapper_; }
   Mapper& mapper() { return mapper_; }
   MapVersions::Version latest_map() { return mapper_.versions().latest(); }
+  // The mapping thread's features (nullptr without): for evaluation once run_mapping returned.
+  LatentFeatures* features() { return features_.get(); }
   std::size_t queued_keyframes() const;
   // Keyframes left out of the map because max_queued_keyframes were waiting.
   std::uint64_t keyframes_left_out() const;
