@@ -171,6 +171,12 @@ nlohmann::json metrics_json(const RunArgs& args, const core::Dataset& dataset,
   metrics["map"] = {{"gaussians", run.map_gaussians},
                     {"keyframes", run.map_keyframes},
                     {"optimisation_steps", run.optimisation_steps}};
+  if (std::isfinite(run.feature_error_online)) {
+    metrics["decoded_features"] = {{"held_out_error_pretrained", run.feature_error_pretrained},
+                                   {"held_out_error_online", run.feature_error_online},
+                                   {"lora_steps", run.lora_steps},
+                                   {"unit", "mean |decoded - encoder| per channel spread (loss_l1)"}};
+  }
   metrics["timing"] = {{"slam_wall_s", run.slam_s},
                        {"frames_per_second", static_cast<double>(n) / run.slam_s},
                        {"tracking_wall_s", t.wall_s},
@@ -220,6 +226,10 @@ int write_outputs(const RunArgs& args, const core::Dataset& dataset, const core:
               static_cast<double>(n) / run.slam_s, args.threads, peak_rss_mib());
   print_views("held-out frames", run.held_out);
   print_views("keyframes", run.keyframes);
+  if (std::isfinite(run.feature_error_online)) {
+    std::printf("decoded features, held-out: error %.4f with the pretrained heads, %.4f after %lld LoRA steps\n",
+                run.feature_error_pretrained, run.feature_error_online, static_cast<long long>(run.lora_steps));
+  }
   std::printf("wrote %s/{trajectory.txt,map.ply,metrics.json,renders/}\n", args.out.c_str());
   return 0;
 }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <future>
 #include <memory>
 #include <optional>
@@ -84,7 +85,46 @@ std::vector<std::size_t> views_to_render(const std::vector<std::pair<std::size_t
   return chosen;
 }
 
-bool evaluate_views(const Dataset& dataset, const SlamPipeline& pipeline, const Rasterizer& rasterizer,
+// The decoded L_feat on held-out views: the map's latent rendered at the mapper's training
+// resolution, decoded by the pretrained heads and by the online-adapted ones, against the encoder.
+class DecodedFeatureError {
+ public:
+  explicit DecodedFeatureError(SlamPipeline* pipeline) : pipeline_(*pipeline) {}
+  bool add(const RgbdFrame& frame, const Eigen::Isometry3d& pose, std::string* why) {
+    const FeatureAutoencoder* online = pipeline_.mapper().feature_decoder();
+    LatentFeatures* features = pipeline_.features();
+    if (online == nullptr || features == nullptr || pipeline_.mapper().map().empty()) return true;
+    const MapperConfig& mc = pipeline_.mapper().config();
+    RenderView view;
+    view.camera = frame.camera.scaled(mc.training_scale);
+    view.T_camera_world = pose.inverse();
+    FeatureObservation obs;
+    if (!features->encode(frame.colour, &pyramid_, why) ||
+        !observe_features(pyramid_, view.camera.width, view.camera.height, mc.feature_samples,
+                          static_cast<std::uint32_t>(frame.id), online->input_mean(), online->input_std(), &obs, why)) {
+      return false;
+    }
+    const double before = pipeline_.mapper().decoded_feature_error(view, obs, features->autoencoder(), why);
+    const double after = pipeline_.mapper().decoded_feature_error(view, obs, *online, why);
+    if (!std::isfinite(before) || !std::isfinite(after)) return false;
+    before_ += before, after_ += after, ++views_;
+    return true;
+  }
+  void write(SequenceRunResult* out) const {
+    if (views_ == 0) return;
+    out->feature_error_pretrained = before_ / views_;
+    out->feature_error_online = after_ / views_;
+    out->lora_steps = pipeline_.mapper().feature_decoder()->online_steps();
+  }
+
+ private:
+  SlamPipeline& pipeline_;
+  FeaturePyramid pyramid_;
+  double before_ = 0, after_ = 0;
+  int views_ = 0;
+};
+
+bool evaluate_views(const Dataset& dataset, SlamPipeline& pipeline, const Rasterizer& rasterizer,
                     const SequenceRunConfig& config, const SequenceCallbacks& callbacks,
                     SequenceRunResult* out, std::string* why) {
   const SequenceTracking& t = out->tracking;
@@ -94,6 +134,7 @@ bool evaluate_views(const Dataset& dataset, const SlamPipeline& pipeline, const 
   settings.features = false;
   const GaussianMap& map = pipeline.mapper().map();
   std::size_t evaluated = 0;
+  DecodedFeatureError feature_error(&pipeline);
   for (const auto& [k, held] : list) {
     RgbdFrame frame;
     if (!dataset.load(t.frame_index[k], &frame, why)) return false;
@@ -102,12 +143,14 @@ bool evaluate_views(const Dataset& dataset, const SlamPipeline& pipeline, const 
     RenderResult rendered;
     if (!evaluate_view(rasterizer, map, frame, pose, settings, &score, why, &rendered)) return false;
     (held ? out->held_out : out->keyframes).views.push_back(score);
+    if (held && !feature_error.add(frame, pose, why)) return false;
     if (callbacks.on_render && std::find(render.begin(), render.end(), k) != render.end() &&
         !callbacks.on_render(frame, rendered, why)) {
       return false;
     }
     if (callbacks.on_evaluated) callbacks.on_evaluated(++evaluated, list.size());
   }
+  feature_error.write(out);
   return true;
 }
 

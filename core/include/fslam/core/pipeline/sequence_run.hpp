@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -51,6 +52,11 @@ struct SequenceRunResult {
   ViewScores held_out;    // eval_every's frames, from the final map
   ViewScores keyframes;   // the keyframes, from the final map
   std::size_t map_gaussians = 0, map_keyframes = 0, optimisation_steps = 0;
+  // The decoded L_feat (loss_l1, in channel spreads) on the held-out views, of the pretrained
+  // heads and of the heads after online LoRA; NaN unless the mapper decodes (FeatureLoss::decoded).
+  double feature_error_pretrained = std::numeric_limits<double>::quiet_NaN();
+  double feature_error_online = std::numeric_limits<double>::quiet_NaN();
+  std::int64_t lora_steps = 0;  // online LoRA steps the heads took
   // The map is the pipeline's: pipeline->mapper().map().
 };
 
