@@ -420,10 +420,14 @@ bool Mapper::decoded_feature_loss(const StoredKeyframe& kf, const PlanarImage& r
 double Mapper::decoded_feature_error(const RenderView& view, const FeatureObservation& observation,
                                      const FeatureAutoencoder& decoder, std::string* why) const {
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  if (map_.feature_dim == 0 || map_.empty()) return fail(why, "mapper: the map has no features"), nan;
+  if (map_.feature_dim == 0 || map_.empty()) {
+    fail(why, "mapper: the map has no features");
+    return nan;
+  }
   if (decoder.latent_dim() != map_.feature_dim || observation.channels != decoder.input_dim() ||
       observation.empty()) {
-    return fail(why, "mapper: decoder, observation and map do not match"), nan;
+    fail(why, "mapper: decoder, observation and map do not match");
+    return nan;
   }
   RenderSettings settings = config_.render;
   settings.features = true;
