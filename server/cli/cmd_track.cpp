@@ -1,5 +1,7 @@
 // `fslam track`: tracking alone (preprocess -> feature-guided GICP -> keyframes) over a dataset,
 // with a progress line, a per-stage timing summary and ATE when the dataset has ground truth.
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <memory>
 #include <string>
@@ -15,6 +17,7 @@
 #include "fslam/core/eval/ate.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/core/pipeline/sequence_run.hpp"
+#include "fslam/core/tracking/keyframe_policy.hpp"
 #include "fslam/server/config_fields.hpp"
 #include "fslam/server/config_options.hpp"
 
@@ -26,6 +29,7 @@ struct TrackArgs {
   server::ConfigOptions config;  // --config, --set and the flags that are shorthands for one key
   std::string out;
   int threads = 1;
+  int relocalise_every = 0;
 };
 
 // median, p99 and mean of one stage's per-frame times.
@@ -53,12 +57,58 @@ void print_timings(const core::SequenceTracking& t, int threads, bool features) 
   if (features) print_stage("features", t.features_ms);
 }
 
+// Issue 20's relocalisation benchmark: every n-th non-keyframe frame, with no prior pose, against
+// the map and keyframes of the whole run; correct when within 5 cm / 5 degrees of its tracked pose.
+bool evaluate_relocalisation(const core::Dataset& dataset, const core::Tracker& tracker,
+                             const core::SequenceTracking& t, int every, std::string* why) {
+  constexpr double kTranslation = 0.05, kRotationDeg = 5.0;
+  std::vector<std::size_t> queries;
+  for (std::size_t i = 1, n = 0; i < t.trajectory.size(); ++i)
+    if (!t.keyframe[i] && n++ % static_cast<std::size_t>(every) == 0) queries.push_back(i);
+  std::fprintf(stderr, "relocalising %zu frames against %zu described keyframes and a %zu-point map\n",
+               queries.size(), tracker.relocaliser().size(), tracker.local_map().size());
+  std::size_t accepted = 0, correct = 0, wrong = 0;
+  std::vector<double> total_ms, describe_ms, search_ms;
+  Progress progress("relocalise", queries.size());
+  for (std::size_t q = 0; q < queries.size(); ++q) {
+    const std::size_t i = queries[q];
+    core::RgbdFrame frame;
+    core::PreparedSource prepared;
+    if (!dataset.load(t.frame_index[i], &frame, why) || !tracker.preprocess(frame, nullptr, &prepared, why))
+      return false;
+    const core::RelocalisationAttempt a = tracker.relocalise(frame, prepared);
+    total_ms.push_back(prepared.preprocess_ms + a.describe_ms + a.time_ms);
+    describe_ms.push_back(a.describe_ms);
+    search_ms.push_back(a.time_ms);
+    if (a.accepted) {
+      ++accepted;
+      const core::PoseMotion e = core::pose_motion(t.trajectory[i].T_world_camera, a.T_world_camera);
+      const bool ok = e.translation <= kTranslation && e.rotation * 180.0 / M_PI <= kRotationDeg;
+      ok ? ++correct : ++wrong;
+      if (!ok)
+        std::fprintf(stderr, "\nframe %lld: wrong acceptance, %.3f m / %.2f deg from its tracked pose (%s)\n",
+                     static_cast<long long>(frame.id), e.translation, e.rotation * 180.0 / M_PI, a.message.c_str());
+    }
+    progress.update(q + 1);
+  }
+  progress.finish();
+  const double n = std::max<double>(1.0, static_cast<double>(queries.size()));
+  std::printf("relocalisation: %zu frames (every %d-th non-keyframe), accepted %zu, within 5 cm / 5 deg %zu "
+              "(%.1f %%), wrong acceptances %zu (%.1f %%)\n",
+              queries.size(), every, accepted, correct, 100.0 * correct / n, wrong, 100.0 * wrong / n);
+  print_stage("reloc total", total_ms);
+  print_stage("reloc describe", describe_ms);
+  print_stage("reloc search", search_ms);
+  return true;
+}
+
 int run_track(const TrackArgs& args) {
   core::DatasetOptions options;
   std::string why;
   const std::unique_ptr<core::Dataset> dataset = open_dataset(args.dataset, &options, &why);
   if (!dataset) return fail(why);
   if (args.threads < 1) return fail("--threads must be >= 1");
+  if (args.relocalise_every < 0) return fail("--relocalise-every must be >= 0");
 
   server::RunConfig layered = server::run_defaults();  // track reads its tracker part
   if (!args.config.apply(&layered, &why)) return fail(why);
@@ -96,8 +146,8 @@ int run_track(const TrackArgs& args) {
   progress.finish();
 
   if (!core::write_tum_trajectory(args.out, t.trajectory, &why)) return fail(why);
-  std::printf("frames %zu, keyframes %zu, lost %zu, recovered %zu, local map %zu points\n", n,
-              t.keyframes(), t.lost, t.recovered, pipeline.tracker().local_map().size());
+  std::printf("frames %zu, keyframes %zu, lost %zu, recovered %zu, wide-baseline restarts %zu, local map %zu points\n",
+              n, t.keyframes(), t.lost, t.recovered, t.wide_baseline, pipeline.tracker().local_map().size());
   print_timings(t, args.threads, with_features);
   if (dataset->has_ground_truth()) {
     core::AteResult ate;
@@ -106,6 +156,9 @@ int run_track(const TrackArgs& args) {
     std::printf("ATE RMSE %.4f m (mean %.4f, median %.4f, max %.4f) over %zu pairs, SE(3)\n",
                 ate.rmse, ate.mean, ate.median, ate.max, ate.pairs);
   }
+  if (args.relocalise_every > 0 &&
+      !evaluate_relocalisation(*dataset, pipeline.tracker(), t, args.relocalise_every, &why))
+    return fail("relocalisation: " + why);
   std::printf("wrote %s\n", args.out.c_str());
   return 0;
 }
@@ -123,6 +176,10 @@ void add_track_command(CLI::App& root, CommandList* commands) {
       ->required();
   app->add_option("--threads", args->threads,
                   "Threads for the GICP reduction (1 = serial; > 1 sets tracker.parallel)")
+      ->capture_default_str();
+  app->add_option("--relocalise-every", args->relocalise_every,
+                  "After tracking, relocalise every n-th non-keyframe frame with no prior pose against "
+                  "the whole run's map and report accuracy and time (0 = off)")
       ->capture_default_str();
   server::add_setting_option(app, "--features", "features.autoencoder_path",
                              "Feature-guided GICP (eq. feat_gicp) with these autoencoder weights",

@@ -182,6 +182,7 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   const auto tracker = section(f, "tracker", [](auto& c) -> auto& { return c.tracker; });
   tracker.add("constant_velocity", &Tracker::constant_velocity);
   tracker.add("refresh_features", &Tracker::refresh_features);
+  tracker.add("wide_baseline_inlier_ratio", &Tracker::wide_baseline_inlier_ratio);
   tracker.add("parallel", &Tracker::parallel);
   tracker.add("target", &Tracker::target, kTrackingTargets);
 
@@ -254,6 +255,22 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   loss.add("min_inliers", &Loss::min_inliers);
   loss.add("max_condition_number", &Loss::max_condition_number);
   loss.add("recovery_keyframes", &Loss::recovery_keyframes);
+
+  using Reloc = core::RelocaliserConfig;
+  const auto reloc = section(f, "tracker.relocalisation",
+                             [](auto& c) -> auto& { return c.tracker.relocalisation; });
+  reloc.add("enabled", &Reloc::enabled);
+  reloc.add("orb_features", &Reloc::orb_features);
+  reloc.add("thumbnail_width", &Reloc::thumbnail_width);
+  reloc.add("candidates", &Reloc::candidates);
+  reloc.add("ratio_test", &Reloc::ratio_test);
+  reloc.add("ransac_iterations", &Reloc::ransac_iterations);
+  reloc.add("inlier_distance", &Reloc::inlier_distance);
+  reloc.add("min_inliers", &Reloc::min_inliers);
+  reloc.add("min_verified_inlier_ratio", &Reloc::min_verified_inlier_ratio);
+  reloc.add("max_verified_translation", &Reloc::max_verified_translation);
+  reloc.add("max_verified_rotation_deg", &Reloc::max_verified_rotation_deg);
+  reloc.add("max_keyframes", &Reloc::max_keyframes);
 }
 
 // The mapper's settings and the latent features' (mapper.*, features.*), in the table after the

@@ -208,6 +208,7 @@ bool track_sequence(const Dataset& dataset, SlamPipeline* pipeline, const Sequen
       if (result.timings.features_ms > 0) out->features_ms.push_back(result.timings.features_ms);
       out->timings.push_back(result.timings);
     }
+    out->wide_baseline += result.wide_baseline;
     if (result.state == TrackingState::lost || result.state == TrackingState::recovered) {
       ++(result.state == TrackingState::lost ? out->lost : out->recovered);
       if (callbacks.on_tracking_event) callbacks.on_tracking_event(frame.id, result);

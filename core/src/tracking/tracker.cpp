@@ -40,6 +40,9 @@ bool TrackerConfig::is_valid(std::string* why) const {
   if (!keyframe.is_valid(&reason)) return fail(why, reason);
   if (!loss.is_valid(&reason)) return fail(why, reason);
   if (!map_target.is_valid(&reason)) return fail(why, reason);
+  if (!relocalisation.is_valid(&reason)) return fail(why, reason);
+  if (!(wide_baseline_inlier_ratio >= 0.0 && wide_baseline_inlier_ratio <= 1.0))
+    return fail(why, "wide_baseline_inlier_ratio must be in [0, 1]");
   if (local_map.voxel_size < gicp.max_correspondence_distance)
     return fail(why, "local_map.voxel_size must be >= gicp.max_correspondence_distance "
                      "(the neighbour search covers one voxel around the query)");
@@ -68,7 +71,8 @@ const char* to_string(TrackingState state) {
   return "unknown";
 }
 
-Tracker::Tracker(const TrackerConfig& config) : config_(config), map_(config.local_map) {}
+Tracker::Tracker(const TrackerConfig& config)
+    : config_(config), map_(config.local_map), relocaliser_(config.relocalisation) {}
 
 void Tracker::reset() {
   map_.clear();
@@ -76,6 +80,23 @@ void Tracker::reset() {
   T_last_.reset();
   T_velocity_.reset();
   keyframes_.clear();
+  relocaliser_.clear();
+}
+
+RelocalisationAttempt Tracker::relocalise(const RgbdFrame& frame, const PreparedSource& prepared) const {
+  const double t0 = now_ms();
+  FrameDescription query;
+  std::string why;
+  if (!describe_frame(frame, config_.relocalisation, config_.preprocess.min_depth, config_.preprocess.max_depth,
+                      &query, &why)) {
+    RelocalisationAttempt failed;
+    failed.message = "relocalisation failed: " + why;
+    return failed;
+  }
+  const double described = now_ms() - t0;
+  RelocalisationAttempt a = relocaliser_.relocalise(query, prepared.points, map_, config_.gicp);
+  a.describe_ms = described;
+  return a;
 }
 
 GicpResult Tracker::register_frame(const GaussianPoints& source,
@@ -124,6 +145,15 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   result->timings.preprocess_ms = prepared.preprocess_ms;
   const double t0 = t1 - prepared.preprocess_ms;  // totals include the preprocessing
 
+  // The frame's ORB description, made once when the wide-baseline guess or a keyframe needs it.
+  FrameDescription description;
+  bool described = false;
+  const auto describe = [&] {
+    if (!described)
+      described = describe_frame(frame, config_.relocalisation, config_.preprocess.min_depth,
+                                 config_.preprocess.max_depth, &description, nullptr);
+    return described;
+  };
   auto add_keyframe = [&](const Eigen::Isometry3d& T_world_camera) {
     // The keyframe's points are fused into the map (moving the points they re-observe), then
     // the keyframe re-observes the map's features; a stored point within the correspondence
@@ -136,6 +166,8 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
       refresh_map_features(*latent, frame.camera, frame.depth, T_world_camera,
                            config_.gicp.max_correspondence_distance, &map_);
     keyframes_.push_back({frame.id, T_world_camera, source});
+    if (config_.relocalisation.enabled && describe())
+      relocaliser_.add_keyframe(frame.id, T_world_camera, std::move(description));
     if (config_.target == TrackingTarget::gaussians) {
       unmapped_.push_back(keyframes_.back());
       // A mapper this far behind is not waited for: the oldest unmapped keyframes leave the
@@ -172,6 +204,21 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   GicpResult gicp = register_frame(source, T_predicted);
   result->state = TrackingState::ok;
 
+  // 2b. Wide baseline (issue 20): a registration that keeps few points may have settled in
+  //     another basin of the nearest-neighbour cost; ORB matches to the last keyframe (RANSAC)
+  //     give a start that does not depend on the prediction.
+  if (config_.relocalisation.enabled && gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
+    Eigen::Isometry3d T_guess;
+    std::size_t matched = 0;
+    if (describe() && relocaliser_.pose_from_keyframe(description, keyframes_.back().frame_id, &T_guess, &matched)) {
+      const GicpResult from_guess = register_frame(source, T_guess);
+      if (!is_lost(from_guess) && from_guess.inlier_ratio > gicp.inlier_ratio) {
+        gicp = from_guess;
+        result->wide_baseline = true;
+      }
+    }
+  }
+
   // 3. Loss detection and recovery: re-register against earlier keyframes from the last good pose.
   if (is_lost(gicp)) {
     const std::string reason = "inliers " + std::to_string(gicp.inliers) + " (" +
@@ -192,10 +239,21 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
                           std::to_string(kf->frame_id);
       }
     }
+    // Then global relocalisation against every described keyframe, with no prior pose.
+    if (!recovered && config_.relocalisation.enabled && relocaliser_.size() > 0) {
+      result->relocalisation = relocalise(frame, prepared);
+      if (result->relocalisation->accepted) {
+        gicp = result->relocalisation->verification;
+        recovered = true;
+        result->state = TrackingState::recovered;
+        result->message = "lost (" + reason + "), " + result->relocalisation->message;
+      }
+    }
     if (!recovered) {
       // Report the prediction as the pose but never let a lost frame change the map or motion.
       result->state = TrackingState::lost;
       result->message = "lost: " + reason;
+      if (result->relocalisation) result->message += "; " + result->relocalisation->message;
       result->T_world_camera = T_predicted;
       result->gicp = gicp;
       result->timings.registration_ms = now_ms() - t1;

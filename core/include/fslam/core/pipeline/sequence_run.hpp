@@ -41,6 +41,7 @@ struct SequenceTracking {
   std::vector<TrackingTimings> timings;     // per frame after the first (the first initialises)
   std::vector<double> load_ms;              // decoding each frame (on the prefetch thread), ms
   std::size_t lost = 0, recovered = 0, skipped = 0;
+  std::size_t wide_baseline = 0;            // frames registered from the ORB guess (tracker.hpp)
   double wall_s = 0.0;                      // tracking the whole sequence
   std::size_t keyframes() const;
 };

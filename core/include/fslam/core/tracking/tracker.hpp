@@ -15,6 +15,7 @@
 #include "fslam/core/tracking/local_map.hpp"
 #include "fslam/core/tracking/map_target.hpp"
 #include "fslam/core/tracking/preprocess.hpp"
+#include "fslam/core/tracking/relocaliser.hpp"
 
 namespace fslam::core {
 
@@ -42,6 +43,15 @@ struct TrackerConfig {
   GicpConfig gicp;
   KeyframeConfig keyframe;
   TrackingLossConfig loss;
+  // Keyframes are described for global relocalisation, which a lost frame tries after the
+  // re-registration against the last keyframes fails (relocaliser.hpp).
+  RelocaliserConfig relocalisation;
+  // Wide baseline (issue 20): when GICP from the prediction keeps fewer than this share of the
+  // source points, the frame's ORB matches to the last keyframe give a second start and the
+  // registration that keeps more points wins. 0 = never (needs relocalisation.enabled).
+  // 0.95: on redkitchen every 20th frame a wrong basin kept 0.81 and right ones 0.86-1.0; at the
+  // full rate 2 of 600 frames fall below it (docs/relocalisation.md).
+  double wide_baseline_inlier_ratio = 0.95;
   // Initial guess T_k = T_{k-1} (T_{k-2}^-1 T_{k-1}) instead of T_{k-1}. Off by default: measured
   // on the synthetic room, GICP settles in a nearby local minimum of the nearest-neighbour cost,
   // the velocity carries that error into the next prediction and the error grew ~2.5x per frame
@@ -77,6 +87,8 @@ struct TrackingResult {
   PreprocessStats preprocess;
   TrackingTimings timings;
   std::string message;          // why a frame was lost or recovered, empty otherwise
+  std::optional<RelocalisationAttempt> relocalisation;  // when the frame tried one
+  bool wide_baseline = false;   // the registration from the ORB guess was kept
 };
 
 // A frame's source set of eq. gicp_sets, ready to register: what Tracker::preprocess makes
@@ -108,6 +120,11 @@ class Tracker {
   bool track(const RgbdFrame& frame, TrackingResult* result, std::string* why,
              const PlanarImage* latent = nullptr);
 
+  // Global relocalisation of a prepared frame against the tracker's map and described keyframes,
+  // with no prior pose. Changes nothing: the caller decides what an accepted pose means.
+  RelocalisationAttempt relocalise(const RgbdFrame& frame, const PreparedSource& prepared) const;
+  const Relocaliser& relocaliser() const { return relocaliser_; }
+
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera) { T_initial_ = T_world_camera; }
   // With target = gaussians: the target built from a map version that contains every keyframe
   // up to `last_keyframe_id` (SlamPipeline builds it on the mapping thread). The tracker then
@@ -137,6 +154,7 @@ class Tracker {
   // target = gaussians: keyframes no map target contains yet, oldest first (their points are
   // added to each new target copy).
   std::deque<Keyframe> unmapped_;
+  Relocaliser relocaliser_;                       // every keyframe, described (bounded)
 };
 
 }  // namespace fslam::core
