@@ -43,7 +43,9 @@ bool write_png(const fs::path& path, const cv::Mat& image, ImageWriteOptions::Pn
 std::string header(const SynthOptions& options) {
   std::ostringstream s;
   s << "# fslam synth: seed " << options.seed << ", " << options.frames << " frames at "
-    << kSynthFrameRate << " Hz, noise " << to_string(options.noise) << "\n";
+    << kSynthFrameRate << " Hz, noise " << to_string(options.noise) << ", path " << to_string(options.path);
+  if (options.path == SynthPath::loop) s << " (" << options.laps << " laps)";
+  s << "\n";
   return s.str();
 }
 
@@ -56,6 +58,7 @@ bool SynthOptions::is_valid(std::string* why) const {
                          std::to_string(frames));
   if (noise != SynthNoise::none && noise != SynthNoise::kinect)
     return fail(why, "unknown noise model");
+  if (path == SynthPath::loop && laps < 1) return fail(why, "laps must be at least 1");
   std::string camera_why;
   if (!camera.is_valid(&camera_why)) return fail(why, "camera: " + camera_why);
   return true;

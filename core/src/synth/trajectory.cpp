@@ -39,9 +39,49 @@ Matrix3d look_along(const Vector3d& forward) {
   return R;
 }
 
+// The loop: periodic in the lap, so each lap ends where it began; the gaze sweeps over the
+// furniture as the wander's does (views of a bare wall alone leave GICP degenerate).
+Trajectory loop_trajectory(const SyntheticRoom& room, const SynthOptions& options) {
+  synth::Rng rng(synth::stream_seed(options.seed, synth::Stream::trajectory));
+  const Vector3d centre = room.camera_zone.center();
+  const Vector3d half = 0.5 * room.camera_zone.sizes();
+  const double direction = rng.sign();
+  const double start = rng.uniform(0.0, kTwoPi);
+  const double lap_frames = static_cast<double>(options.frames) / options.laps;
+  Trajectory trajectory;
+  trajectory.reserve(options.frames);
+  for (std::size_t i = 0; i < options.frames; ++i) {
+    const double a = start + direction * kTwoPi * static_cast<double>(i) / lap_frames;  // lap angle
+    // Height and gaze wobble with harmonics of the lap, so they repeat exactly each lap.
+    const Vector3d p = centre + Vector3d(0.8 * half.x() * std::cos(a), 0.8 * half.y() * std::sin(a),
+                                         0.5 * half.z() * std::sin(2.0 * a));
+    // Gaze: the furniture's centre (room.look_at), swept sideways and up and down.
+    const Vector3d look = room.look_at + Vector3d(0.4 * std::sin(3.0 * a), 0.25 * std::cos(2.0 * a), 0.15 * std::sin(a));
+    const Vector3d forward = look - p;
+    const Matrix3d R = look_along(forward) *
+                       Eigen::AngleAxisd(3.0 * kDeg * std::sin(4.0 * a), Vector3d::UnitZ()).toRotationMatrix();
+    StampedPose pose;
+    pose.timestamp = static_cast<double>(i) / kSynthFrameRate;
+    pose.T_world_camera.linear() = R;
+    pose.T_world_camera.translation() = p;
+    trajectory.push_back(pose);
+  }
+  return trajectory;
+}
+
 }  // namespace
 
+const char* to_string(SynthPath path) { return path == SynthPath::loop ? "loop" : "wander"; }
+
+bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why) {
+  if (text == "wander") return *path = SynthPath::wander, true;
+  if (text == "loop") return *path = SynthPath::loop, true;
+  if (why) *why = "unknown synthetic path '" + text + "' (wander or loop)";
+  return false;
+}
+
 Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options) {
+  if (options.path == SynthPath::loop) return loop_trajectory(room, options);
   synth::Rng rng(synth::stream_seed(options.seed, synth::Stream::trajectory));
   const Vector3d centre = room.camera_zone.center();
   const Vector3d half = 0.5 * room.camera_zone.sizes();

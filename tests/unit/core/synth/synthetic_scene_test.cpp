@@ -208,6 +208,49 @@ TEST(SynthTrajectory, HandheldMotionInsideFreeSpace) {
   }
 }
 
+// The loop path returns exactly to its start pose after each lap, stays in free space, moves like
+// a slow hand-held camera and covers ground between revisits (loop-closure tests need both).
+TEST(SynthTrajectory, LoopReturnsToItsStartEveryLap) {
+  for (std::uint64_t seed = 1; seed <= 5; ++seed) {
+    const SyntheticRoom room = make_room(seed);
+    SynthOptions options;
+    options.seed = seed;
+    options.frames = 1200;
+    options.path = SynthPath::loop;
+    options.laps = 2;
+    const Trajectory trajectory = make_trajectory(room, options);
+    ASSERT_EQ(trajectory.size(), options.frames);
+    const Eigen::Isometry3d& start = trajectory[0].T_world_camera;
+    const Eigen::Isometry3d& lap = trajectory[600].T_world_camera;
+    EXPECT_LT((lap.translation() - start.translation()).norm(), 1e-9) << "seed " << seed;
+    EXPECT_LT(rotation_angle(lap.linear().transpose() * start.linear()), 1e-9) << "seed " << seed;
+    double farthest = 0.0, step_max = 0.0, angle_max = 0.0;
+    for (std::size_t i = 0; i < trajectory.size(); ++i) {
+      const Eigen::Isometry3d& T = trajectory[i].T_world_camera;
+      ASSERT_TRUE(is_rigid(T.matrix(), 1e-9));
+      ASSERT_GE(synth_clearance(room, T.translation()), SyntheticRoom::kCameraClearance)
+          << "seed " << seed << " frame " << i;
+      farthest = std::max(farthest, (T.translation() - start.translation()).norm());
+      if (i == 0) continue;
+      const Eigen::Isometry3d delta = trajectory[i - 1].T_world_camera.inverse() * T;
+      step_max = std::max(step_max, delta.translation().norm());
+      angle_max = std::max(angle_max, rotation_angle(delta.linear()));
+    }
+    EXPECT_GT(farthest, 0.3) << "seed " << seed << ": the loop must leave its start";
+    EXPECT_LT(step_max, 0.015) << "seed " << seed;
+    EXPECT_LT(angle_max, 2.2 * kDeg) << "seed " << seed;
+  }
+  SynthOptions bad;
+  bad.path = SynthPath::loop;
+  bad.laps = 0;
+  std::string why;
+  EXPECT_FALSE(bad.is_valid(&why));
+  EXPECT_NE(why.find("laps"), std::string::npos) << why;
+  SynthPath path;
+  EXPECT_FALSE(parse_synth_path("spiral", &path, &why));
+  EXPECT_NE(why.find("spiral"), std::string::npos) << why;
+}
+
 TEST(SynthNoise, KinectModel) {
   const SyntheticRoom room = make_room(1);
   SynthOptions options;

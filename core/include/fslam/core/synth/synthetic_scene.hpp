@@ -61,10 +61,19 @@ bool is_structural(SynthClass c);
 // 525 px focal length, principal point (319.5, 239.5), 640x480: the TUM "ROS default".
 PinholeCamera synth_default_camera();
 
+// The camera path: a wander through the camera zone, or laps of one closed loop that return
+// exactly to the start pose (loop closure is tested against them).
+enum class SynthPath { wander, loop };
+const char* to_string(SynthPath path);
+// Accepts "wander" and "loop".
+bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why);
+
 struct SynthOptions {
   std::size_t frames = 300;  // sequence length, frames at kSynthFrameRate
   std::uint64_t seed = 1;    // room layout, textures, trajectory and noise
   SynthNoise noise = SynthNoise::kinect;
+  SynthPath path = SynthPath::wander;
+  int laps = 2;              // path = loop: the frames cover this many laps
   PinholeCamera camera = synth_default_camera();  // colour and depth share these intrinsics
 
   // At least one frame, at most kMaxFrames; a valid camera.
@@ -141,9 +150,11 @@ SyntheticRoom make_room(std::uint64_t seed);
 // the free space, negative inside an object or outside the room.
 double synth_clearance(const SyntheticRoom& room, const Eigen::Vector3d& p_world);
 
-// Camera-to-world poses at t = i / kSynthFrameRate for i < options.frames: the camera centre
-// wanders smoothly through room.camera_zone (about 5-10 mm per frame) while the view sweeps
-// across the furniture (about 0.5-1.5 degrees per frame), plus a slight deterministic shake.
+// Camera-to-world poses at t = i / kSynthFrameRate for i < options.frames. wander: the camera
+// centre wanders smoothly through room.camera_zone (about 5-10 mm per frame) while the view
+// sweeps across the furniture (about 0.5-1.5 degrees per frame), plus a slight deterministic
+// shake. loop: the centre goes round an ellipse inside the zone, the view sweeping over the
+// furniture, `laps` times in `frames` frames; frame k * frames / laps is the start pose again.
 Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options);
 
 struct SynthView {
