@@ -65,7 +65,7 @@ esac
 # Debian 12 packages of the product (see ../shared/platform.md for what each is for).
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git ccache
-  libeigen3-dev libopencv-dev libflann-dev
+  libeigen3-dev libopencv-dev libflann-dev libceres-dev
   cyclonedds-dev cyclonedds-tools libopenimageio-dev openimageio-tools
   libgtest-dev libgmock-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev libtbb-dev
   libpng-dev  # the client writes depth PNGs itself (client/src/depth_png.hpp)

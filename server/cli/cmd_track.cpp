@@ -16,6 +16,7 @@
 #include "fslam/core/features/latent_features.hpp"
 #include "fslam/core/eval/ate.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
+#include "fslam/core/pipeline/loop_closure.hpp"
 #include "fslam/core/pipeline/sequence_run.hpp"
 #include "fslam/core/tracking/keyframe_policy.hpp"
 #include "fslam/server/config_fields.hpp"
@@ -30,6 +31,8 @@ struct TrackArgs {
   std::string out;
   int threads = 1;
   int relocalise_every = 0;
+  bool loop_closure = false;
+  std::size_t loop_gap = core::LoopClosureConfig{}.min_frame_gap;
 };
 
 // median, p99 and mean of one stage's per-frame times.
@@ -109,6 +112,8 @@ int run_track(const TrackArgs& args) {
   if (!dataset) return fail(why);
   if (args.threads < 1) return fail("--threads must be >= 1");
   if (args.relocalise_every < 0) return fail("--relocalise-every must be >= 0");
+  if (args.relocalise_every > 0 && args.loop_closure)
+    return fail("--relocalise-every measures against the tracked map; run it without --loop-closure");
 
   server::RunConfig layered = server::run_defaults();  // track reads its tracker part
   if (!args.config.apply(&layered, &why)) return fail(why);
@@ -145,6 +150,33 @@ int run_track(const TrackArgs& args) {
   }
   progress.finish();
 
+  // The last frame's distance from its ground truth: the tracker starts at the first frame's, so
+  // on a loop path this is the end-to-start error.
+  const auto last_error = [&](const core::Trajectory& trajectory) {
+    const core::StampedPose* gt = core::nearest_pose(dataset->ground_truth(), trajectory.back().timestamp, 0.02);
+    return gt ? (gt->T_world_camera.translation() - trajectory.back().T_world_camera.translation()).norm() : -1.0;
+  };
+  if (args.loop_closure) {
+    const double before = dataset->has_ground_truth() ? last_error(t.trajectory) : -1.0;
+    core::AteResult ate_before;
+    if (dataset->has_ground_truth() &&
+        !core::compute_ate(dataset->ground_truth(), t.trajectory, core::AteConfig{}, &ate_before, &why))
+      return fail("ATE: " + why);
+    core::LoopClosureResult loops;
+    Progress loop_progress("loop closure", t.keyframes());
+    core::LoopClosureConfig loop_config;
+    loop_config.min_frame_gap = args.loop_gap;
+    if (!core::close_loops(*dataset, config.tracker, loop_config, &t, &loops, &why,
+                           [&](std::size_t done, std::size_t) { loop_progress.update(done); }))
+      return fail("loop closure: " + why);
+    loop_progress.finish();
+    std::printf("loop closure: %zu keyframes, %zu loop(s), %zu candidate(s) refused, %.1f s%s%s\n", loops.keyframes,
+                loops.loops.size(), loops.rejected, loops.seconds, loops.loops.empty() ? "" : "; ",
+                loops.loops.empty() ? "" : loops.graph.message.c_str());
+    if (dataset->has_ground_truth())
+      std::printf("before loop closure: ATE RMSE %.4f m, last frame %.4f m from its ground truth\n", ate_before.rmse,
+                  before);
+  }
   if (!core::write_tum_trajectory(args.out, t.trajectory, &why)) return fail(why);
   std::printf("frames %zu, keyframes %zu, lost %zu, recovered %zu, wide-baseline restarts %zu, local map %zu points\n",
               n, t.keyframes(), t.lost, t.recovered, t.wide_baseline, pipeline.tracker().local_map().size());
@@ -155,6 +187,7 @@ int run_track(const TrackArgs& args) {
       return fail("ATE: " + why);
     std::printf("ATE RMSE %.4f m (mean %.4f, median %.4f, max %.4f) over %zu pairs, SE(3)\n",
                 ate.rmse, ate.mean, ate.median, ate.max, ate.pairs);
+    if (args.loop_closure) std::printf("last frame %.4f m from its ground truth\n", last_error(t.trajectory));
   }
   if (args.relocalise_every > 0 &&
       !evaluate_relocalisation(*dataset, pipeline.tracker(), t, args.relocalise_every, &why))
@@ -180,6 +213,12 @@ void add_track_command(CLI::App& root, CommandList* commands) {
   app->add_option("--relocalise-every", args->relocalise_every,
                   "After tracking, relocalise every n-th non-keyframe frame with no prior pose against "
                   "the whole run's map and report accuracy and time (0 = off)")
+      ->capture_default_str();
+  app->add_flag("--loop-closure", args->loop_closure,
+               "After tracking, find revisits among the keyframes, optimise their pose graph (Ceres) "
+               "and correct the trajectory (docs/relocalisation.md)");
+  app->add_option("--loop-gap", args->loop_gap,
+                  "Frames between a keyframe and an older one it may close a loop with")
       ->capture_default_str();
   server::add_setting_option(app, "--features", "features.autoencoder_path",
                              "Feature-guided GICP (eq. feat_gicp) with these autoencoder weights",
