@@ -169,7 +169,9 @@ try {
   check(first.lit > 0.02, `canvas not blank at map version ${first.version} (${first.count} Gaussians, ${(100 * first.lit).toFixed(1)} % of pixels lit)`);
   const later = await until("a later map version", async () => {
     const s = await snapshot();
-    return s.version > first.version && s.count > first.count ? s : null;
+    // Grown by a seventh at least: one keyframe's few hundred new splats can leave this
+    // viewpoint's pixels almost as they were (mean grey change 0.5-0.7 measured), a flaky test.
+    return s.version > first.version && s.count >= 1.15 * first.count ? s : null;
   }, 90000, 500);
   await sleep(1500);  // a few frames of the new splats
   const grown = await snapshot();

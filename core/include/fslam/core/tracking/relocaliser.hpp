@@ -72,6 +72,7 @@ struct RelocalisationAttempt {
   std::string message;             // one line for logs
 };
 
+// One thread at a time: the FLANN index is built lazily inside the const queries.
 class Relocaliser {
  public:
   explicit Relocaliser(const RelocaliserConfig& config);
