@@ -8,7 +8,6 @@
 #include "fslam/core/error.hpp"
 #include "fslam/core/tracking/gicp_impl.hpp"
 #include "fslam/core/tracking/kdtree_target.hpp"
-#include "fslam/core/tracking/keyframe_policy.hpp"
 #include "fslam/core/tracking/relocaliser.hpp"
 
 namespace fslam::core {
@@ -43,6 +42,7 @@ bool close_loops(const Dataset& dataset, const TrackerConfig& tracker_config, co
   Relocaliser places(tracker_config.relocalisation);
   std::vector<GaussianPoints> points_world(nodes.size());
   std::vector<PoseGraphEdge> edges;
+  std::size_t far_enough = 0;  // nodes [0, far_enough) are min_frame_gap or more frames older
   for (std::size_t n = 0; n < nodes.size(); ++n) {
     const std::size_t entry = nodes[n];
     const Eigen::Isometry3d& T_world_k = t.trajectory[entry].T_world_camera;
@@ -53,13 +53,13 @@ bool close_loops(const Dataset& dataset, const TrackerConfig& tracker_config, co
         !describe_frame(frame, tracker_config.relocalisation, tracker_config.preprocess.min_depth,
                         tracker_config.preprocess.max_depth, &description, why))
       return false;
-    // Node ids in the database are node indices; the gap is in dataset positions.
-    std::int64_t newest_allowed = -1;
-    for (std::size_t m = 0; m < n; ++m)
-      if (t.frame_index[nodes[m]] + config.min_frame_gap <= t.frame_index[entry]) newest_allowed = static_cast<std::int64_t>(m);
-    if (newest_allowed >= 0) {
+    // Node ids in the database are node indices; the gap is in dataset positions, which grow
+    // with the node index, so the nodes far enough back are a prefix.
+    while (far_enough < n && t.frame_index[nodes[far_enough]] + config.min_frame_gap <= t.frame_index[entry])
+      ++far_enough;
+    if (far_enough > 0) {
       const std::vector<std::int64_t> similar = places.similar_keyframes(
-          description, static_cast<std::size_t>(config.candidates), newest_allowed + 1,
+          description, static_cast<std::size_t>(config.candidates), static_cast<std::int64_t>(far_enough),
           std::numeric_limits<std::int64_t>::max());
       for (std::int64_t j : similar) {
         Eigen::Isometry3d T_guess;
@@ -69,10 +69,7 @@ bool close_loops(const Dataset& dataset, const TrackerConfig& tracker_config, co
         KdTreeTarget target;
         if (!target.build(points_world[static_cast<std::size_t>(j)])) continue;
         const GicpResult g = align(prepared.points, target, T_guess, tracker_config.gicp, SerialReduction{});
-        const PoseMotion moved = pose_motion(T_guess, g.T_target_source);
-        if (!g.converged || g.inlier_ratio < config.min_verified_inlier_ratio ||
-            moved.translation > tracker_config.relocalisation.max_verified_translation ||
-            moved.rotation * 180.0 / M_PI > tracker_config.relocalisation.max_verified_rotation_deg) {
+        if (!verifies(tracker_config.relocalisation, T_guess, g, config.min_verified_inlier_ratio)) {
           ++result->rejected;
           continue;
         }

@@ -3,8 +3,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
+#include <iomanip>
 #include <random>
+#include <sstream>
 
 #include <flann/flann.hpp>
 #include <opencv2/features2d.hpp>
@@ -84,6 +85,14 @@ RansacFit ransac(const std::vector<Eigen::Vector3f>& from, const std::vector<Eig
 }
 
 }  // namespace
+
+bool verifies(const RelocaliserConfig& config, const Eigen::Isometry3d& T_candidate, const GicpResult& gicp,
+              double min_inlier_ratio) {
+  const PoseMotion moved = pose_motion(T_candidate, gicp.T_target_source);
+  return gicp.converged && is_finite(gicp.T_target_source) && gicp.inlier_ratio >= min_inlier_ratio &&
+         moved.translation <= config.max_verified_translation &&
+         moved.rotation * 180.0 / M_PI <= config.max_verified_rotation_deg;
+}
 
 bool RelocaliserConfig::is_valid(std::string* why) const {
   if (orb_features < 16) return fail(why, "relocalisation.orb_features must be >= 16");
@@ -264,11 +273,7 @@ RelocalisationAttempt Relocaliser::relocalise(const FrameDescription& query, con
     if (kf == nullptr || !candidate_pose(query, *kf, &T_candidate, &matches, &inliers)) continue;
     // Verification against the map (eq. gicp_pose from the candidate).
     const GicpResult g = align(source, map, T_candidate, gicp, SerialReduction{});
-    const PoseMotion moved = pose_motion(T_candidate, g.T_target_source);
-    const bool verified = g.converged && is_finite(g.T_target_source) &&
-                          g.inlier_ratio >= config_.min_verified_inlier_ratio &&
-                          moved.translation <= config_.max_verified_translation &&
-                          moved.rotation * 180.0 / M_PI <= config_.max_verified_rotation_deg;
+    const bool verified = verifies(config_, T_candidate, g, config_.min_verified_inlier_ratio);
     if (verified || g.inlier_ratio > best_ratio) {  // the report names the best candidate
       best_ratio = g.inlier_ratio;
       a.keyframe_id = id;
@@ -283,13 +288,12 @@ RelocalisationAttempt Relocaliser::relocalise(const FrameDescription& query, con
     }
   }
   a.time_ms = now_ms() - t0;
-  char line[256];
-  std::snprintf(line, sizeof line,
-                "relocalisation %s: %zu candidate keyframe(s), best %lld with %zu matches, %zu RANSAC "
-                "inliers, GICP inliers %.0f %%, %.1f ms",
-                a.accepted ? "accepted" : "failed", a.candidates, static_cast<long long>(a.keyframe_id),
-                a.matches, a.inliers, 100.0 * a.verification.inlier_ratio, a.time_ms + a.describe_ms);
-  a.message = line;
+  std::ostringstream line;
+  line << "relocalisation " << (a.accepted ? "accepted" : "failed") << ": " << a.candidates
+       << " candidate keyframe(s), best " << a.keyframe_id << " with " << a.matches << " matches, " << a.inliers
+       << " RANSAC inliers, GICP inliers " << std::lround(100.0 * a.verification.inlier_ratio) << " %, "
+       << std::fixed << std::setprecision(1) << a.time_ms + a.describe_ms << " ms";
+  a.message = line.str();
   return a;
 }
 

@@ -94,9 +94,13 @@ RelocalisationAttempt Tracker::relocalise(const RgbdFrame& frame, const Prepared
     return failed;
   }
   const double described = now_ms() - t0;
-  RelocalisationAttempt a = relocaliser_.relocalise(query, prepared.points, map_, config_.gicp);
+  RelocalisationAttempt a = relocalise(query, prepared);
   a.describe_ms = described;
   return a;
+}
+
+RelocalisationAttempt Tracker::relocalise(const FrameDescription& query, const PreparedSource& prepared) const {
+  return relocaliser_.relocalise(query, prepared.points, map_, config_.gicp);
 }
 
 GicpResult Tracker::register_frame(const GaussianPoints& source,
@@ -241,7 +245,13 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     }
     // Then global relocalisation against every described keyframe, with no prior pose.
     if (!recovered && config_.relocalisation.enabled && relocaliser_.size() > 0) {
-      result->relocalisation = relocalise(frame, prepared);
+      // The description the wide-baseline start may have made already is reused.
+      const double t_describe = now_ms();
+      const bool ok = describe();
+      const double describe_ms = now_ms() - t_describe;
+      result->relocalisation = ok ? relocalise(description, prepared) : RelocalisationAttempt{};
+      result->relocalisation->describe_ms = describe_ms;
+      if (!ok) result->relocalisation->message = "relocalisation failed: the frame has no ORB description";
       if (result->relocalisation->accepted) {
         gicp = result->relocalisation->verification;
         recovered = true;

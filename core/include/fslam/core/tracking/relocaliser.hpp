@@ -45,6 +45,12 @@ struct RelocaliserConfig {
   bool is_valid(std::string* why = nullptr) const;
 };
 
+// The verification rule: GICP from T_candidate converged, kept at least min_inlier_ratio of the
+// source points and moved the candidate by at most config's max_verified_* (the loop closer
+// applies it between keyframes with its own ratio).
+bool verifies(const RelocaliserConfig& config, const Eigen::Isometry3d& T_candidate, const GicpResult& gicp,
+              double min_inlier_ratio);
+
 // What relocalisation needs of one frame: its keypoints in the camera frame and its global
 // descriptor.
 struct FrameDescription {

@@ -144,6 +144,7 @@ class Tracker {
   bool is_keyframe(const Eigen::Isometry3d& T_world_camera, const GicpResult& gicp) const;
   bool is_lost(const GicpResult& gicp) const;
   GicpResult register_frame(const GaussianPoints& source, const Eigen::Isometry3d& T_init) const;
+  RelocalisationAttempt relocalise(const FrameDescription& query, const PreparedSource& prepared) const;
 
   TrackerConfig config_;
   LocalMap map_;
