@@ -4,6 +4,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -193,6 +194,12 @@ bool policy_of(const std::string& policy, client::SessionOptions* options) {
   return true;
 }
 
+// SIGUSR1 pauses sending frames and the next one resumes it (odd count: paused). The client stays
+// connected while paused, unlike a stopped process, whose participant lease runs out.
+volatile std::sig_atomic_t pause_toggles = 0;
+extern "C" void toggle_pause(int) { pause_toggles = pause_toggles + 1; }
+bool pause_requested() { return pause_toggles % 2 == 1; }
+
 int run_stream(const StreamArgs& args) {
   core::DatasetOptions options;
   std::string why;
@@ -238,7 +245,9 @@ int run_stream(const StreamArgs& args) {
                dataset->root().c_str(), args.session.c_str(),
                rate > 0 ? (args.rate + " fps").c_str() : "full speed");
   Progress progress("stream", n);
+  std::signal(SIGUSR1, toggle_pause);
   const auto start = std::chrono::steady_clock::now();
+  std::chrono::steady_clock::duration paused_for{};  // the --rate schedule moves on by the pauses
   // Queue sessions hold a bounded number of frames (server.queue_capacity, 64 by default): a
   // client faster than tracking waits for answers rather than overrunning it (frames the
   // server drops are errors). Live sessions skip instead, so they need no window.
@@ -258,9 +267,17 @@ int run_stream(const StreamArgs& args) {
         std::this_thread::sleep_for(std::chrono::milliseconds(2));
       }
     }
+    if (pause_requested()) {
+      const auto paused_at = std::chrono::steady_clock::now();
+      std::fprintf(stderr, "\n[stream] paused before frame %zu of %zu (SIGUSR1 resumes)\n", i + 1, n);
+      while (pause_requested()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      paused_for += std::chrono::steady_clock::now() - paused_at;
+      std::fprintf(stderr, "[stream] resumed\n");
+    }
     if (rate > 0) {
-      std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                                std::chrono::duration<double>(static_cast<double>(i) / rate)));
+      std::this_thread::sleep_until(start + paused_for +
+                                    std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                        std::chrono::duration<double>(static_cast<double>(i) / rate)));
     }
     core::RgbdFrame frame;
     if (!dataset->load(i, &frame, &why)) return fail(why);
@@ -319,7 +336,8 @@ int run_stream(const StreamArgs& args) {
 void add_stream_command(CLI::App& root, CommandList* commands) {
   auto* app = root.add_subcommand(
       "stream", "Play a dataset to a running fslam-server over DDS; write the poses it returns "
-                "and print ATE when the dataset has ground truth");
+                "and print ATE when the dataset has ground truth. SIGUSR1 pauses sending and "
+                "resumes it (a pause longer than the server's session lease closes the session)");
   auto args = std::make_shared<StreamArgs>();
   add_dataset_options(app, &args->dataset, false);
   app->add_option("--rosbag2", args->rosbag2,
@@ -330,7 +348,7 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
                   "Milliseconds within which colour and depth header stamps pair")
       ->capture_default_str();
   app->add_option("--session", args->session, "Session name")->capture_default_str();
-  app->add_option("--map", args->map, "Map to create or attach to (default: the session name)");
+  app->add_option("--map", args->map, "Map to create (default: the session name); it must not exist on the server yet");
   app->add_option("--rate", args->rate, "Frames per second, or max")->capture_default_str();
   app->add_option("--out", args->out, "Trajectory of the received poses (TUM)");
   app->add_option("--report", args->report,

@@ -174,6 +174,7 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   pipeline.add("realtime", &Pipeline::realtime);
   pipeline.add("min_iterations_when_behind", &Pipeline::min_iterations_when_behind);
   pipeline.add("idle_iterations", &Pipeline::idle_iterations);
+  pipeline.add("max_idle_iterations", &Pipeline::max_idle_iterations);
   pipeline.add("max_queued_keyframes", &Pipeline::max_queued_keyframes);
   pipeline.add("track_with_features", &Pipeline::track_with_features);
   pipeline.add("tracking_encoder_input", &Pipeline::tracking_encoder_input);

@@ -1,7 +1,10 @@
 // The built-in default end to end through the real binary: synth -> info -> eval.
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <fstream>
 #include <random>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -150,6 +153,60 @@ TEST_F(SynthPipeline, RealTimeKeyframeQueueIsBoundedAndCountsWhatItLeavesOut) {
   ASSERT_TRUE(pipeline.run_mapping(nullptr, &why)) << why;
   EXPECT_EQ(pipeline.mapper().keyframe_count(), 3u);
   EXPECT_EQ(pipeline.queued_keyframes(), 0u);
+}
+
+// Real time with nothing left to map: idle optimisation goes on for max_idle_iterations after the
+// newest keyframe (one map version per idle_iterations), then the mapping thread sleeps and the
+// map version stays still until a keyframe or finish() wakes it.
+TEST_F(SynthPipeline, RealTimeIdleOptimisationStopsAfterItsBudget) {
+  std::string why;
+  core::DatasetOptions options;
+  ASSERT_TRUE(core::FrameSelection::parse("0:12", &options.frames, &why)) << why;
+  const auto dataset = core::open_dataset(dir_, options, &why);
+  ASSERT_TRUE(dataset) << why;
+  core::PipelineConfig config;
+  config.realtime = true;
+  config.idle_iterations = 2;
+  config.max_idle_iterations = 6;
+  config.mapper.iterations_per_keyframe = 3;
+  core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
+  std::atomic<std::uint64_t> mapped_version{0};
+  std::atomic<int> mapped{0};
+  bool mapping_ok = false;
+  std::string mapping_why;
+  std::thread mapping([&] {
+    mapping_ok = pipeline.run_mapping([&](const core::KeyframeReport&) {
+      mapped_version = pipeline.mapper().versions().version_number();
+      ++mapped;
+    }, &mapping_why);
+  });
+  int keyframes = 0;
+  for (std::size_t i = 0; i < dataset->size(); ++i) {
+    core::RgbdFrame frame;
+    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
+    core::TrackingResult result;
+    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    keyframes += result.keyframe ? 1 : 0;
+  }
+  ASSERT_GE(keyframes, 1);
+  // Bounded waits: every keyframe mapped, then a version that holds for 1.5 s.
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  while (mapped < keyframes && std::chrono::steady_clock::now() < give_up)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  ASSERT_EQ(mapped, keyframes) << "mapping did not catch up within 120 s";
+  std::uint64_t still = 0;
+  for (auto last_change = std::chrono::steady_clock::now();
+       std::chrono::steady_clock::now() - last_change < std::chrono::milliseconds(1500);) {
+    ASSERT_LT(std::chrono::steady_clock::now(), give_up) << "the map version never stopped changing";
+    const std::uint64_t v = pipeline.mapper().versions().version_number();
+    if (v != still) still = v, last_change = std::chrono::steady_clock::now();
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  // 6 idle iterations in steps of 2: three versions after the last keyframe's, no more.
+  EXPECT_EQ(still, mapped_version + 3);
+  pipeline.finish();
+  mapping.join();
+  EXPECT_TRUE(mapping_ok) << mapping_why;
 }
 
 // Tracking and mapping through the real binary: every output written, the synthetic room's

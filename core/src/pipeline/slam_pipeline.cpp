@@ -12,7 +12,7 @@ namespace fslam::core {
 
 bool PipelineConfig::is_valid(std::string* why) const {
   if (!tracker.is_valid(why) || !mapper.is_valid(why)) return false;
-  if (min_iterations_when_behind < 0 || idle_iterations < 0) {
+  if (min_iterations_when_behind < 0 || idle_iterations < 0 || max_idle_iterations < 0) {
     return fail(why, "pipeline: iteration counts must be >= 0");
   }
   if (tracking_encoder_input != 0) {
@@ -254,6 +254,7 @@ std::size_t SlamPipeline::queued_keyframes() const {
 
 bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
                                std::string* why) {
+  int idle_done = 0;  // idle iterations since the newest keyframe was mapped
   for (;;) {
     QueuedKeyframe queued;
     std::size_t waiting = 0;
@@ -262,18 +263,23 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
       if (config_.realtime) {
         // Idle time goes to more optimisation while nothing waits.
         while (queue_.empty() && !finished_) {
-          lock.unlock();
-          if (!mapper_.optimise(config_.idle_iterations, why)) return false;
-          lock.lock();
-          if (mapper_.keyframe_count() == 0 && queue_.empty() && !finished_) {
+          if (mapper_.keyframe_count() == 0 || idle_done >= config_.max_idle_iterations ||
+              config_.idle_iterations == 0) {
             wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
+            continue;
           }
+          const int step = std::min(config_.idle_iterations, config_.max_idle_iterations - idle_done);
+          lock.unlock();
+          if (!mapper_.optimise(step, why)) return false;
+          idle_done += step;
+          lock.lock();
         }
       } else {
         wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
       }
       if (queue_.empty()) return true;  // finished and drained
       queued = std::move(queue_.front());
+      idle_done = 0;
       queue_.pop_front();
       waiting = queue_.size();
     }

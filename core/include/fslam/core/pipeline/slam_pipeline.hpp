@@ -25,10 +25,13 @@ struct PipelineConfig {
   MapperConfig mapper;
   // Real-time mode: mapping gets what time is left. With keyframes waiting, each gets
   // iterations_per_keyframe / (1 + waiting) steps (at least min_iterations_when_behind), and
-  // while none waits the mapper keeps optimising in steps of idle_iterations.
+  // while none waits the mapper keeps optimising in steps of idle_iterations, up to
+  // max_idle_iterations after the newest keyframe: a session that stops sending frames leaves
+  // its mapping thread asleep (and its map version still) instead of busy for good.
   bool realtime = false;
   int min_iterations_when_behind = 2;
   int idle_iterations = 5;
+  int max_idle_iterations = 200;
   // Real-time mode: at most this many keyframes wait for the mapper (each holds the frame's colour
   // and depth, ~2 MB at 640x480). Past it the most redundant waiting keyframe -- the one that moved
   // least from the keyframe before it -- is left out of the map (the tracker keeps it) and
