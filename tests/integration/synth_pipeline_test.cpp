@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 #include <fstream>
+#include <memory>
 #include <random>
 #include <thread>
 
@@ -37,6 +38,12 @@ class SynthPipeline : public ::testing::Test {
   }
   static void TearDownTestSuite() { std::filesystem::remove_all(dir_); }
   void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
+  // The synthetic sequence's frames `selection` (A:B[:S]); null, and `why` says so, on failure.
+  static std::unique_ptr<core::Dataset> frames(const std::string& selection, std::string* why) {
+    core::DatasetOptions options;
+    if (!core::FrameSelection::parse(selection, &options.frames, why)) return nullptr;
+    return core::open_dataset(dir_, options, why);
+  }
   static std::string dir_;
   static int status_;
   static std::string log_;
@@ -93,9 +100,7 @@ TEST_F(SynthPipeline, InfoSummarisesTheSequence) {
 // frame's ground truth, follows it to millimetres, and is the one the command writes.
 TEST_F(SynthPipeline, TrackSequenceStartsAtGroundTruthAndMatchesTheCommand) {
   std::string why;
-  core::DatasetOptions options;
-  ASSERT_TRUE(core::FrameSelection::parse("0:20", &options.frames, &why)) << why;
-  const auto dataset = core::open_dataset(dir_, options, &why);
+  const auto dataset = frames("0:20", &why);
   ASSERT_TRUE(dataset) << why;
   core::PipelineConfig config;
   config.mapping = false;
@@ -129,9 +134,7 @@ TEST_F(SynthPipeline, TrackSequenceStartsAtGroundTruthAndMatchesTheCommand) {
 // max_queued_keyframes wait, every keyframe beyond is counted as left out, and tracking goes on.
 TEST_F(SynthPipeline, RealTimeKeyframeQueueIsBoundedAndCountsWhatItLeavesOut) {
   std::string why;
-  core::DatasetOptions options;
-  ASSERT_TRUE(core::FrameSelection::parse("0:60", &options.frames, &why)) << why;
-  const auto dataset = core::open_dataset(dir_, options, &why);
+  const auto dataset = frames("0:60", &why);
   ASSERT_TRUE(dataset) << why;
   core::PipelineConfig config;
   config.realtime = true;
@@ -160,9 +163,7 @@ TEST_F(SynthPipeline, RealTimeKeyframeQueueIsBoundedAndCountsWhatItLeavesOut) {
 // map version stays still until a keyframe or finish() wakes it.
 TEST_F(SynthPipeline, RealTimeIdleOptimisationStopsAfterItsBudget) {
   std::string why;
-  core::DatasetOptions options;
-  ASSERT_TRUE(core::FrameSelection::parse("0:12", &options.frames, &why)) << why;
-  const auto dataset = core::open_dataset(dir_, options, &why);
+  const auto dataset = frames("0:12", &why);
   ASSERT_TRUE(dataset) << why;
   core::PipelineConfig config;
   config.realtime = true;
