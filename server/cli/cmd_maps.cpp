@@ -63,8 +63,10 @@ int run_status(const StatusArgs& args) {
   std::this_thread::sleep_for(std::chrono::duration<double>(args.seconds));
   std::lock_guard<std::mutex> lock(mutex);
   if (latest.empty()) {
-    return fail("no status from a server on prefix '" + args.client.prefix + "' within " +
-                std::to_string(args.seconds) + " s (is fslam-server running with that prefix?)");
+    char seconds[32];
+    std::snprintf(seconds, sizeof seconds, "%g", args.seconds);
+    return fail("no status from a server on prefix '" + args.client.prefix + "' within " + seconds +
+                " s (is fslam-server running with that prefix?)");
   }
   std::printf("%-16s %-14s %-6s %9s %8s %8s %9s %9s %5s %8s %8s %31s %8s\n", "map", "session", "policy",
               "gaussians", "version", "tracked", "received", "processed", "queue", "skipped", "dropped",
