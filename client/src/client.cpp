@@ -193,12 +193,14 @@ bool Client::control(const std::string& session, const std::string& map_name, bo
   const std::string what = attach_only ? "attach to map '" + map_name + "'"
                                        : std::string(open ? "open" : "close") + " session '" + session + "'";
   Answer answer;
-  return call(control_writer_.get(), &msg, session, msg.request_id, what, timeout_ms, &answer, why);
+  // Opening is repeatable (an open session answers OK again); a repeated close would answer
+  // "unknown session" after the first closed it.
+  return call(control_writer_.get(), &msg, session, msg.request_id, what, timeout_ms, &answer, why, open);
 }
 
 bool Client::call(dds_entity_t writer, const void* sample, const std::string& client,
                   std::uint64_t id, const std::string& what, int timeout_ms, Answer* answer,
-                  std::string* why) {
+                  std::string* why, bool repeatable) {
   const auto key = std::make_pair(client, id);
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
@@ -207,8 +209,9 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
   // Wait for discovery both ways (a server's reader of the request and its writer of results:
   // results are volatile, so one sent before the server's writer matched our reader is lost),
   // then send and wait for the answer. When a new server reader matches meanwhile (the server
-  // restarted, or another instance took over), the request goes again with the same id: the
-  // server answers a repeated id once (docs/protocol.md "Resending").
+  // restarted, or another instance took over), the request goes again with the same id; so it
+  // does, when repeatable, after 1, 2, 4, 8, 8, ... s without an answer: our side matching first
+  // does not mean that the server's side has matched our reader (docs/protocol.md "Resending").
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
   dds_publication_matched_status_t matched{};
   dds_subscription_matched_status_t answering{};
@@ -222,6 +225,8 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
   }
   bool sent = matched.current_count > 0 && dds_write(writer, sample) == DDS_RETCODE_OK;
   std::uint32_t readers_seen = matched.total_count;
+  int resend_ms = kFirstResendMs;
+  auto next_resend = std::chrono::steady_clock::now() + std::chrono::milliseconds(resend_ms);
   bool arrived = false;
   while (sent && !arrived) {
     const auto slice = std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(100));
@@ -229,9 +234,14 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
       std::unique_lock<std::mutex> lock(callback_mutex_);
       arrived = result_arrived_.wait_until(lock, slice, [&] { return awaited_[key]->arrived; });
     }
-    if (arrived || std::chrono::steady_clock::now() >= deadline) break;
-    if (both_matched() && matched.total_count > readers_seen) {
+    const auto now = std::chrono::steady_clock::now();
+    if (arrived || now >= deadline) break;
+    const bool new_reader = both_matched() && matched.total_count > readers_seen;
+    const bool overdue = repeatable && now >= next_resend && matched.current_count > 0;
+    if (new_reader || overdue) {
       readers_seen = matched.total_count;
+      resend_ms = std::min(2 * resend_ms, kLastResendMs);
+      next_resend = now + std::chrono::milliseconds(resend_ms);
       if (dds_write(writer, sample) == DDS_RETCODE_OK) resends_.fetch_add(1, std::memory_order_relaxed);
     }
   }
@@ -494,7 +504,7 @@ void Client::listen() {
         answer.result = update;
         answer.arrived = true;
         result_arrived_.notify_all();
-      } else if (result_callback_ && addresses_.count(update.client) != 0) {
+      } else if (result_callback_ && update.request_id < kFirstRequestId && addresses_.count(update.client) != 0) {
         result_callback_(update);
       }
     });

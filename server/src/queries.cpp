@@ -104,8 +104,8 @@ void Queries::accept(const fslam_proto_Request& msg) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     auto key = std::make_pair(query->client, query->request_id);
-    if (accepted_.count(key) > 0) return;  // a resend of one queued or answered already
-    if (client_rates_.size() > kRememberedRequests) client_rates_.clear();  // bounded: limits restart
+    if (in_flight_.count(key) > 0) return;  // a resend of one still queued or being answered
+    if (client_rates_.size() > kRememberedClients) client_rates_.clear();  // bounded: limits restart
     auto rate = client_rates_.try_emplace(query->client, config_.max_client_requests_per_s).first;
     if (!rate->second.take()) {
       counters_.add(&ServerStats::requests_failed);
@@ -115,12 +115,7 @@ void Queries::accept(const fslam_proto_Request& msg) {
       return;
     }
     if (queue_.size() < config_.query_queue_capacity) {
-      accepted_.insert(key);
-      accepted_order_.push_back(std::move(key));
-      if (accepted_order_.size() > kRememberedRequests) {
-        accepted_.erase(accepted_order_.front());
-        accepted_order_.pop_front();
-      }
+      in_flight_.insert(std::move(key));
       queue_.push_back(std::move(query));
       wake_.notify_one();
       return;
@@ -143,6 +138,8 @@ void Queries::serve() {
       queue_.pop_front();
     }
     answer(*query);
+    std::lock_guard<std::mutex> lock(mutex_);
+    in_flight_.erase({query->client, query->request_id});
   }
 }
 

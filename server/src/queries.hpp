@@ -43,10 +43,11 @@ class Queries {
   // Starts server.query_threads threads answering the queue.
   void start();
   // A fslam/requests sample: queued, or refused as busy when server.query_queue_capacity wait.
-  // A (client, request id) accepted before (a client's resend, docs/protocol.md "Resending") is
-  // answered once: the repeat is dropped. The last kRememberedRequests ids are remembered.
+  // A (client, request id) still queued or being answered (a client's resend, docs/protocol.md
+  // "Resending") is dropped; one answered already is run again, as its answer may have been lost.
   void accept(const fslam_proto_Request& msg);
-  static constexpr std::size_t kRememberedRequests = 4096;
+  // Per-client request rates remembered before they are forgotten (and their limits restart).
+  static constexpr std::size_t kRememberedClients = 4096;
   // Answers what is queued, then stops the threads.
   void stop();
 
@@ -83,8 +84,7 @@ class Queries {
   std::mutex mutex_;  // guards everything below
   std::deque<std::unique_ptr<Query>> queue_;
   std::unordered_map<std::string, RateLimit> client_rates_;  // server.max_client_requests_per_s
-  std::set<std::pair<std::string, std::uint64_t>> accepted_;         // recent (client, id)
-  std::deque<std::pair<std::string, std::uint64_t>> accepted_order_;  // oldest first
+  std::set<std::pair<std::string, std::uint64_t>> in_flight_;  // (client, id) queued or being answered
   std::condition_variable wake_;
   bool stopping_ = false;
 };

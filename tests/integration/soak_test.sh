@@ -69,7 +69,7 @@ sys.exit(0 if ok else 1)
 PY
 stop_ms=$(stop_within "$SERVER" 60)
 check "SIGTERM honoured within 60 s (${stop_ms} ms: sessions drain, mapping finishes, maps are saved)" test "$stop_ms" -lt 60000
-tail -1 "$WORK/server.log"
+if [ "$FAILED" -ne 0 ]; then echo "--- the server's log, last 40 lines:"; tail -40 "$WORK/server.log"; else tail -1 "$WORK/server.log"; fi
 stop_started
 PIDS=()
 exit "$FAILED"

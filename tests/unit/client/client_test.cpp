@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -153,6 +154,74 @@ TEST(Client, RefusesBadFramesWithAReason) {
   TestFrame missing(3);
   missing.input.depth = nullptr;
   EXPECT_FALSE(client.push_frame("s", missing.input, &why));
+}
+
+// A stand-in server that drops the first copy of every request, as a server whose result writer
+// had not yet matched the client's reader loses its first answer: the client sends the request
+// again, same id, without an answer after Client::kFirstResendMs, and the call gets the answer
+// (docs/protocol.md "Resending"). A close is not repeatable and is not resent.
+TEST(Client, AnUnansweredRequestIsSentAgainWithItsId) {
+  test::use_loopback_dds();
+  const std::string prefix = "clientresend" + std::to_string(getpid());
+  Entity participant = make_participant(DDS_DOMAIN_DEFAULT);
+  Entity requests = make_topic(participant, &fslam_proto_Request_desc, prefix, "requests");
+  Entity controls = make_topic(participant, &fslam_proto_SessionControl_desc, prefix, "session");
+  Entity results = make_topic(participant, &fslam_proto_Result_desc, prefix, "results");
+  Entity request_reader = make_reader(participant, requests, Delivery::reliable);
+  Entity control_reader = make_reader(participant, controls, Delivery::reliable);
+  Entity result_writer = make_writer(participant, results, Delivery::reliable);
+  std::mutex mutex;
+  std::map<std::uint64_t, int> copies;  // request id -> copies seen
+  std::atomic<bool> stop{false};
+  std::thread server([&] {
+    while (!stop) {
+      const auto answer_second = [&](const char* client, std::uint64_t id) {
+        int seen = 0;
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          seen = ++copies[id];
+        }
+        if (seen < 2) return;  // the first copy's answer is "lost"
+        fslam_proto_Result r{};
+        char error[] = "stand-in answers the second copy", empty[] = "";
+        r.client = const_cast<char*>(client);
+        r.request_id = id;
+        r.map_name = empty;
+        r.status = fslam_proto_RESULT_ERROR;
+        r.error = error;
+        r.path = empty;
+        dds_write(result_writer.get(), &r);
+      };
+      take_each<fslam_proto_Request>(request_reader.get(),
+                                     [&](const fslam_proto_Request& m) { answer_second(m.client, m.request_id); });
+      take_each<fslam_proto_SessionControl>(control_reader.get(), [&](const fslam_proto_SessionControl& m) {
+        answer_second(m.session, m.request_id);
+      });
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+  });
+  ClientOptions options;
+  options.prefix = prefix;
+  Client client(options);
+  std::string why;
+  RenderQuery q;
+  q.map_name = "room";
+  RenderOutput out;
+  const auto t0 = std::chrono::steady_clock::now();
+  EXPECT_FALSE(client.render(q, &out, 10000, &why));
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_NE(why.find("stand-in answers the second copy"), std::string::npos) << why;
+  EXPECT_GE(client.resends(), 1u);
+  EXPECT_LT(s, 5.0) << "the resend should go after about " << Client::kFirstResendMs << " ms";
+  EXPECT_FALSE(client.open_session("s", "room", 10000, &why));
+  EXPECT_NE(why.find("stand-in answers the second copy"), std::string::npos) << why;
+  // A close goes once: the stand-in never answers it.
+  const std::uint64_t before = client.resends();
+  EXPECT_FALSE(client.close_session("s", 2500, &why));
+  EXPECT_NE(why.find("no answer"), std::string::npos) << why;
+  EXPECT_EQ(client.resends(), before);
+  stop = true;
+  server.join();
 }
 
 }  // namespace

@@ -225,8 +225,12 @@ class Client {
                 std::string* why);
   // This client's name on fslam/requests (host, process and instance).
   const std::string& id() const { return id_; }
-  // Requests sent again because a new server matched before they were answered.
+  // Requests sent again because a new server matched, or no answer came in time (docs/protocol.md
+  // "Resending").
   std::uint64_t resends() const { return resends_.load(std::memory_order_relaxed); }
+  // An unanswered repeatable request goes again after kFirstResendMs, twice that, ... at most
+  // kLastResendMs apart.
+  static constexpr int kFirstResendMs = 1000, kLastResendMs = 8000;
 
   // Called on the client's listener thread for every pose the server publishes.
   void on_pose(std::function<void(const PoseUpdate&)> callback);
@@ -244,9 +248,12 @@ class Client {
   bool control(const std::string& session, const std::string& map_name, bool open, bool attach_only,
                FramePolicy policy, int timeout_ms, std::string* why);
   // Sends `sample` with `writer` once a server matched, and waits for the result (client, id);
-  // sends it again, same id, whenever a new server reader matches before the answer came.
+  // sends it again, same id, whenever a new server reader matches before the answer came, and,
+  // when `repeatable` (the server may run it twice), after kFirstResendMs, twice that, ... without
+  // an answer: one sent before the server's result writer matched our reader is lost.
   bool call(dds_entity_t writer, const void* sample, const std::string& client, std::uint64_t id,
-            const std::string& what, int timeout_ms, Answer* answer, std::string* why);
+            const std::string& what, int timeout_ms, Answer* answer, std::string* why,
+            bool repeatable = true);
   std::uint64_t new_request_id();
   // REQUEST_SAVE_MAP (save) or REQUEST_LOAD_MAP; server_folder (optional) gets the result's path.
   bool map_folder_request(bool save, const std::string& map_name, const std::string& folder,
@@ -264,7 +271,10 @@ class Client {
   std::condition_variable result_arrived_;
   std::map<std::pair<std::string, std::uint64_t>, std::unique_ptr<Answer>> awaited_;
   std::set<std::string> addresses_;  // result `client` values meant for us: id_ and our sessions
-  std::uint64_t next_request_ = 1ull << 62;  // apart from frame ids, which frame results echo
+  // Apart from frame ids, which frame results echo: a result with an id from here that no call
+  // awaits answers a resend of a call already answered, and is dropped.
+  static constexpr std::uint64_t kFirstRequestId = 1ull << 62;
+  std::uint64_t next_request_ = kFirstRequestId;
   std::atomic<bool> stop_{false};
   std::atomic<std::uint64_t> resends_{0};
   std::thread listener_;
