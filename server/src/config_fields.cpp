@@ -287,6 +287,7 @@ void add_mapper_fields(SettingsTable<core::PipelineConfig>* f) {
   mapper.add("insert_stride", &Mapper::insert_stride);
   mapper.add("max_gaussians", &Mapper::max_gaussians);
   mapper.add("revisit_translation", &Mapper::revisit_translation);
+  mapper.add("max_stored_keyframes", &Mapper::max_stored_keyframes);
   mapper.add("revisit_rotation_deg", &Mapper::revisit_rotation_deg);
   mapper.add("insert_from", &Mapper::insert_from, kInsertFrom);
   mapper.add("source_min_distance", &Mapper::source_min_distance);

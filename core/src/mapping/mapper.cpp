@@ -41,6 +41,7 @@ bool MapperConfig::is_valid(std::string* why) const {
   if (max_gaussians < 0) return fail(why, "mapper: max_gaussians must be >= 0 (0: no bound)");
   if (!(revisit_translation >= 0.0) || !(revisit_rotation_deg >= 0.0))
     return fail(why, "mapper: revisit_translation and revisit_rotation_deg must be >= 0 (0: keep every keyframe)");
+  if (max_stored_keyframes < 3) return fail(why, "mapper: max_stored_keyframes must be >= 3");
   if (!(training_scale > 0.0 && training_scale <= 1.0)) {
     return fail(why, "mapper: training_scale must be in (0, 1]");
   }
@@ -500,6 +501,26 @@ void Mapper::recompute_filter_3d(std::size_t first) {
   }
 }
 
+void Mapper::drop_most_redundant_keyframe() {
+  const auto gap = [&](const StoredKeyframe& a, const StoredKeyframe& b) {
+    const PoseMotion m = pose_motion(a.view.T_camera_world.inverse(), b.view.T_camera_world.inverse());
+    return motion_in_thresholds(m, config_.mapping_keyframe_translation, config_.mapping_keyframe_rotation_deg);
+  };
+  std::size_t drop = 1;
+  double smallest = std::numeric_limits<double>::infinity();
+  for (std::size_t i = 1; i + 1 < keyframes_.size(); ++i) {
+    const double g = gap(keyframes_[i - 1], keyframes_[i + 1]);
+    if (g < smallest) smallest = g, drop = i;
+  }
+  keyframes_.erase(keyframes_.begin() + static_cast<std::ptrdiff_t>(drop));
+}
+
+std::vector<std::int64_t> Mapper::keyframe_ids() const {
+  std::vector<std::int64_t> ids;
+  for (const StoredKeyframe& kf : keyframes_) ids.push_back(kf.frame_id);
+  return ids;
+}
+
 void Mapper::reset_round() {
   importance_.assign(map_.size(), 0.0f);
   seen_.assign(map_.size(), 0);
@@ -531,6 +552,10 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
       keyframes_.erase(revisited);  // the newest stays last (sample_keyframe)
       s.replaced_keyframe = true;
     }
+  }
+  if (keyframes_.size() >= config_.max_stored_keyframes) {
+    drop_most_redundant_keyframe();
+    s.dropped_keyframe = true;
   }
   keyframes_.push_back(std::move(kf));
   s.insert_ms = ms_since(t0);

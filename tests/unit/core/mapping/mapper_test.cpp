@@ -204,6 +204,38 @@ TEST(Mapper, RevisitingKeyframeReplacesTheStoredOne) {
   EXPECT_FALSE(replaced);
 }
 
+// Past max_stored_keyframes the stored keyframe whose neighbours in time are closest makes room:
+// the first and the newest stay, the count holds at the cap.
+TEST(Mapper, StoredKeyframesStopAtTheirCapKeepingTheWidestSpread) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.iterations_per_keyframe = 1;
+  config.revisit_translation = 0.0;  // every keyframe would be kept
+  config.max_stored_keyframes = 4;
+  Mapper mapper(config, make_cpu_rasterizer());
+  std::string why;
+  RefinementStats s;
+  // Frame 20 three times, as keyframes 20, 101 and 102: 101 sits between two copies of its own
+  // pose, so dropping it leaves no gap; any other interior keyframe would leave one.
+  const auto add = [&](std::size_t frame, std::int64_t id) {
+    MapperKeyframe kf = f.keyframe(frame);
+    kf.frame_id = id;
+    return mapper.add_keyframe(kf, &s, &why);
+  };
+  ASSERT_TRUE(add(0, 0) && add(20, 20) && add(20, 101) && add(20, 102)) << why;
+  EXPECT_FALSE(s.dropped_keyframe);
+  ASSERT_TRUE(add(39, 39)) << why;
+  EXPECT_TRUE(s.dropped_keyframe);
+  EXPECT_EQ(mapper.keyframe_ids(), (std::vector<std::int64_t>{0, 20, 102, 39}));
+  ASSERT_TRUE(add(10, 10)) << why;
+  EXPECT_EQ(mapper.keyframe_count(), 4u);
+  EXPECT_EQ(mapper.keyframe_ids().front(), 0);
+  EXPECT_EQ(mapper.keyframe_ids().back(), 10);
+  config.max_stored_keyframes = 2;
+  EXPECT_FALSE(config.is_valid(&why));
+  EXPECT_NE(why.find("max_stored_keyframes"), std::string::npos) << why;
+}
+
 TEST(Mapper, ImportancePruningRemovesAtMostThePercentileOfNewGaussians) {
   Fixture f;
   MapperConfig config = small_config();

@@ -108,6 +108,10 @@ struct MapperConfig {
   // none there.
   double revisit_translation = 0.02;  // metres
   double revisit_rotation_deg = 2.0;
+  // At most this many stored keyframes (>= 3; ~0.6 MB each at 640x480), for a camera that keeps
+  // exploring new ground: past it, the stored keyframe whose neighbours in time are closest
+  // (mapping_keyframe_* units) makes room; the first and the newest stay.
+  std::size_t max_stored_keyframes = 1000;
   // Standard 3DGS pruning after each round.
   float min_opacity = 0.005f;
   float max_scale = 0.5f;             // metres, largest axis
@@ -167,6 +171,7 @@ struct RefinementStats {
   int iterations = 0;
   bool mapping_keyframe = false;
   bool replaced_keyframe = false;  // it took the place of a stored keyframe it revisits
+  bool dropped_keyframe = false;   // a stored keyframe made room for it (max_stored_keyframes)
   bool at_capacity = false;  // insertion stopped at MapperConfig::max_gaussians
   MappingLosses last_losses;
   double insert_ms = 0, optimise_ms = 0, prune_ms = 0;
@@ -202,6 +207,8 @@ class Mapper {
   const GaussianMap& map() const { return map_; }
   MapVersions& versions() { return versions_; }
   std::size_t keyframe_count() const { return keyframes_.size(); }
+  // The frame ids of the stored keyframes, oldest first.
+  std::vector<std::int64_t> keyframe_ids() const;
   std::int64_t total_steps() const { return step_; }
   const MapperConfig& config() const { return config_; }
   // The cap on gradient steps of the next refinement rounds (real-time mode lowers it when
@@ -228,6 +235,9 @@ class Mapper {
                  std::string* why) const;
   bool refine_view(const StoredKeyframe& kf, StoredKeyframe* out, std::string* why) const;
   std::size_t insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input, bool* at_capacity);
+  // Erases the interior stored keyframe whose removal leaves the smallest gap between its
+  // neighbours (MapperConfig::max_stored_keyframes).
+  void drop_most_redundant_keyframe();
   // Appends one Gaussian seen by `kf` at training pixel (u, v) and depth z: observed point
   // p_world, surface normal n_world, sigmas in and across the surface (metres), colour and
   // features from the keyframe's images. sh: scratch of sh_per_gaussian() values.
