@@ -11,62 +11,11 @@
 #include "fslam/server/map_export.hpp"
 #include "fslam/server/map_files.hpp"
 #include "fslam/server/render_images.hpp"
+#include "fslam/server/request_checks.hpp"
 #include "counters.hpp"
 #include "map_registry.hpp"
 
 namespace fslam::server {
-namespace {
-
-// Checks the prompts of a segment request against their mode and the prompt view; `boxes` gets
-// the box prompts. Cheap checks only: nothing is rendered.
-bool check_prompts(const fslam_proto_SegmentMode mode, const std::vector<float>& points,
-                   const std::vector<float>& box_values, const core::PinholeCamera& camera,
-                   std::size_t max_prompts, std::vector<Eigen::Vector2d>* uv,
-                   std::vector<core::BoxPrompt>* boxes, std::string* why) {
-  const double w = camera.width, h = camera.height;
-  if (points.size() / 2 > max_prompts || box_values.size() / 4 > max_prompts) {
-    return core::fail(why, "segment: more than " + std::to_string(max_prompts) +
-                               " points or boxes in one request (server.max_prompts)");
-  }
-  const std::string size = std::to_string(camera.width) + "x" + std::to_string(camera.height);
-  if (mode == fslam_proto_SEGMENT_POINTS) {
-    if (points.empty()) return core::fail(why, "segment: a point query needs at least one point (u, v)");
-    if (points.size() % 2 != 0) {
-      return core::fail(why, "segment: points are u, v pairs; got an odd number of coordinates (" +
-                                 std::to_string(points.size()) + ")");
-    }
-    for (std::size_t i = 0; i < points.size(); i += 2) {
-      const double u = points[i], v = points[i + 1];
-      // Pixel centres at integers: a point belongs to the view when it rounds into its grid.
-      if (!(u >= -0.5 && u < w - 0.5 && v >= -0.5 && v < h - 0.5)) {
-        return core::fail(why, "segment: point (" + number_text(u) + ", " + number_text(v) +
-                                   ") lies outside the " + size + " view");
-      }
-      uv->emplace_back(u, v);
-    }
-  } else if (mode == fslam_proto_SEGMENT_BOXES) {
-    if (box_values.empty()) return core::fail(why, "segment: a box query needs at least one box (u0, v0, u1, v1)");
-    if (box_values.size() % 4 != 0) {
-      return core::fail(why, "segment: boxes are u0, v0, u1, v1 quadruples; got " +
-                                 std::to_string(box_values.size()) + " numbers");
-    }
-    for (std::size_t i = 0; i < box_values.size(); i += 4) {
-      const core::BoxPrompt b{box_values[i], box_values[i + 1], box_values[i + 2], box_values[i + 3]};
-      const std::string name = "box (" + number_text(b.u0) + ", " + number_text(b.v0) + ", " + number_text(b.u1) +
-                               ", " + number_text(b.v1) + ")";
-      if (!(b.u1 > b.u0 && b.v1 > b.v0)) {
-        return core::fail(why, "segment: " + name + " is empty: it needs u1 > u0 and v1 > v0");
-      }
-      if (!(b.u0 >= 0 && b.v0 >= 0 && b.u1 <= w && b.v1 <= h)) {
-        return core::fail(why, "segment: " + name + " reaches outside the " + size + " view");
-      }
-      boxes->push_back(b);
-    }
-  }
-  return true;
-}
-
-}  // namespace
 
 Queries::Queries(const ServerConfig& config, MapRegistry& maps, const Replies& replies,
                  Counters& counters, const core::Rasterizer& rasterizer,
@@ -105,6 +54,22 @@ void Queries::accept(const fslam_proto_Request& msg) {
     std::lock_guard<std::mutex> lock(mutex_);
     auto key = std::make_pair(query->client, query->request_id);
     if (in_flight_.count(key) > 0) return;  // a resend of one still queued or being answered
+    const auto was = answered_.find(key);
+    if (was != answered_.end()) {  // a resend of one answered: its answer again, not a second run
+      const SmallAnswer& a = was->second;
+      fslam_proto_Result r{};
+      std::string map_name = a.map_name, error = a.error, path = a.path;
+      r.client = query->client.data();
+      r.request_id = query->request_id;
+      r.map_name = map_name.data();
+      r.status = a.ok ? fslam_proto_RESULT_OK : fslam_proto_RESULT_ERROR;
+      r.error = error.data();
+      r.path = path.data();
+      r.map_version = a.map_version;
+      r.map_gaussians = a.map_gaussians;
+      replies_.result(r);
+      return;
+    }
     if (client_rates_.size() > kRememberedClients) client_rates_.clear();  // bounded: limits restart
     auto rate = client_rates_.try_emplace(query->client, config_.max_client_requests_per_s).first;
     if (!rate->second.take()) {
@@ -138,8 +103,15 @@ void Queries::serve() {
       queue_.pop_front();
     }
     answer(*query);
-    std::lock_guard<std::mutex> lock(mutex_);
-    in_flight_.erase({query->client, query->request_id});
+  }
+}
+
+void Queries::remember_locked(const RequestKey& key, SmallAnswer answer) {
+  if (!answered_.emplace(key, std::move(answer)).second) return;
+  answered_order_.push_back(key);
+  if (answered_order_.size() > kRememberedAnswers) {
+    answered_.erase(answered_order_.front());
+    answered_order_.pop_front();
   }
 }
 
@@ -190,6 +162,12 @@ void Queries::answer(const Query& query) {
   r.path = folder.data();
   replies_.result(r);
   counters_.add(ok ? &ServerStats::requests_answered : &ServerStats::requests_failed);
+  std::lock_guard<std::mutex> lock(mutex_);
+  const RequestKey key{query.client, query.request_id};
+  in_flight_.erase(key);
+  if (r.images._length == 0 && r.gaussians._length == 0) {
+    remember_locked(key, {map_name, error, folder, ok, r.map_version, r.map_gaussians});
+  }
 }
 
 bool Queries::resolve_view(const fslam_proto_RenderRequest& req, MapEntry& map, core::RenderView* view,
@@ -208,19 +186,8 @@ bool Queries::resolve_view(const fslam_proto_RenderRequest& req, MapEntry& map, 
     }
     view->camera = map.camera;
   }
-  const fslam_proto_Intrinsics& k = req.intrinsics;
-  if (k.width != 0) {
-    view->camera = {k.fx, k.fy, k.cx, k.cy, static_cast<int>(k.width), static_cast<int>(k.height)};
-  } else if (view->camera.width == 0) {
-    return core::fail(why, "map '" + map.name + "' has no camera of its own; give intrinsics");
-  }
-  std::string reason;
-  if (!view->camera.is_valid(&reason)) return core::fail(why, "intrinsics: " + reason);
-  if (static_cast<std::uint64_t>(view->camera.width) * static_cast<std::uint64_t>(view->camera.height) >
-      config_.max_render_pixels) {
-    return core::fail(why, std::to_string(view->camera.width) + "x" +
-                               std::to_string(view->camera.height) + " is over the server's limit of " +
-                               std::to_string(config_.max_render_pixels) + " pixels");
+  if (!render_camera(req.intrinsics, view->camera, map.name, config_.max_render_pixels, &view->camera, why)) {
+    return false;
   }
   view->T_camera_world = T_world_camera->inverse();
   return true;
@@ -229,13 +196,8 @@ bool Queries::resolve_view(const fslam_proto_RenderRequest& req, MapEntry& map, 
 bool Queries::render(const Query& query, MapEntry& map, fslam_proto_Result* result, ResultImages* images,
                      std::string* why) const {
   const fslam_proto_RenderRequest& req = query.render;
-  constexpr std::uint32_t kKnown = fslam_proto_CHANNEL_COLOUR | fslam_proto_CHANNEL_DEPTH |
-                                   fslam_proto_CHANNEL_NORMALS | fslam_proto_CHANNEL_OPACITY;
-  if (req.channels == 0 || (req.channels & ~kKnown) != 0) {
-    return core::fail(why, "render: channels must be a non-empty set of CHANNEL_* bits");
-  }
-  const float depth_scale = req.depth_scale == 0.0f ? 1000.0f : req.depth_scale;
-  if (!(depth_scale > 0) || !std::isfinite(depth_scale)) return core::fail(why, "render: depth_scale must be positive");
+  float depth_scale = 0.0f;
+  if (!check_render_channels(req.channels, req.depth_scale, &depth_scale, why)) return false;
   core::RenderView view;
   Eigen::Isometry3d T_world_camera;
   std::string reason;
@@ -260,14 +222,8 @@ bool Queries::render(const Query& query, MapEntry& map, fslam_proto_Result* resu
 bool Queries::segment(const Query& query, MapEntry& map, fslam_proto_Result* result, ResultImages* images,
                       std::string* why) const {
   const fslam_proto_SegmentMode mode = query.segment_mode;
-  if (mode != fslam_proto_SEGMENT_PROMPTLESS && mode != fslam_proto_SEGMENT_POINTS &&
-      mode != fslam_proto_SEGMENT_BOXES && mode != fslam_proto_SEGMENT_TEXT) {
-    return core::fail(why, "segment: unknown mode " + std::to_string(static_cast<int>(mode)));
-  }
+  if (!check_segment_mode(mode, query.text, why)) return false;
   if (mode == fslam_proto_SEGMENT_TEXT) {
-    if (query.text.find_first_not_of(" \t\r\n") == std::string::npos) {
-      return core::fail(why, "segment: a text query needs a text");
-    }
     if (!grounding_) {
       return core::fail(why, "text queries need a grounding detector: set server.grounding_model to "
                              "an ONNX model (docs/segmentation.md)");

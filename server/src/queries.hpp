@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -44,8 +45,12 @@ class Queries {
   void start();
   // A fslam/requests sample: queued, or refused as busy when server.query_queue_capacity wait.
   // A (client, request id) still queued or being answered (a client's resend, docs/protocol.md
-  // "Resending") is dropped; one answered already is run again, as its answer may have been lost.
+  // "Resending") is dropped. One answered already gets its answer again, as that may have been
+  // lost: the remembered answer when it carried no images or Gaussians (saves, loads, errors: so
+  // these run once), else it runs again (renders, segmentations and exports only read).
   void accept(const fslam_proto_Request& msg);
+  // Answers without images or Gaussians remembered for resends.
+  static constexpr std::size_t kRememberedAnswers = 1024;
   // Per-client request rates remembered before they are forgotten (and their limits restart).
   static constexpr std::size_t kRememberedClients = 4096;
   // Answers what is queued, then stops the threads.
@@ -84,7 +89,16 @@ class Queries {
   std::mutex mutex_;  // guards everything below
   std::deque<std::unique_ptr<Query>> queue_;
   std::unordered_map<std::string, RateLimit> client_rates_;  // server.max_client_requests_per_s
-  std::set<std::pair<std::string, std::uint64_t>> in_flight_;  // (client, id) queued or being answered
+  using RequestKey = std::pair<std::string, std::uint64_t>;  // (client, request id)
+  struct SmallAnswer {
+    std::string map_name, error, path;
+    bool ok = false;
+    std::uint64_t map_version = 0, map_gaussians = 0;
+  };
+  void remember_locked(const RequestKey& key, SmallAnswer answer);
+  std::set<RequestKey> in_flight_;                // queued or being answered
+  std::map<RequestKey, SmallAnswer> answered_;    // the last kRememberedAnswers small answers
+  std::deque<RequestKey> answered_order_;         // oldest first
   std::condition_variable wake_;
   bool stopping_ = false;
 };

@@ -78,6 +78,46 @@ std::vector<std::uint8_t> frame(int colour_encoding, int depth_encoding, bool wi
   return b.data;
 }
 
+// request_fuzz.cpp's layout: kind, id, the prompt view, segment mode, output view, points, boxes,
+// export fields, then map name, path and text (a length byte each, the text the rest).
+struct RequestSeed {
+  int kind = 0;           // fslam_proto_RequestKind: 0 render, 1 save, 2 load, 3 segment, 4 export
+  bool from_frame = false;
+  std::uint16_t width = 0, height = 0;  // 0: the map's camera
+  int channels = 1;
+  int mode = 0;           // fslam_proto_SegmentMode: 0 promptless, 1 points, 2 boxes, 3 text
+  std::vector<float> points, boxes;
+  std::string map = "room", path, text;
+};
+
+void put_view(Bytes& b, const RequestSeed& r) {
+  b.put<std::uint8_t>(r.from_frame ? 1 : 0).put<std::uint64_t>(5);
+  for (double t : {0.1, 0.0, -0.5}) b.put<double>(t);
+  for (double q : {0.0, 0.0, 0.0, 1.0}) b.put<double>(q);
+  b.put<float>(500.0f).put<float>(500.0f).put<float>(r.width / 2.0f - 0.5f).put<float>(r.height / 2.0f - 0.5f);
+  b.put<std::uint16_t>(r.width).put<std::uint16_t>(r.height);
+  b.put<std::uint8_t>(static_cast<std::uint8_t>(r.channels)).put<float>(0.0f);
+}
+
+std::vector<std::uint8_t> request(const RequestSeed& r) {
+  Bytes b;
+  b.put<std::uint8_t>(static_cast<std::uint8_t>(r.kind)).put<std::uint64_t>(1ull << 62);
+  put_view(b, r);
+  b.put<std::uint8_t>(static_cast<std::uint8_t>(r.mode)).put<std::uint8_t>(0);
+  put_view(b, r);
+  for (const std::vector<float>* v : {&r.points, &r.boxes}) {
+    b.put<std::uint8_t>(static_cast<std::uint8_t>(v->size()));
+    for (float x : *v) b.put<float>(x);
+  }
+  b.put<std::uint64_t>(0).put<std::uint64_t>(0).put<std::uint32_t>(0).put<std::uint32_t>(0);
+  for (const std::string* s : {&r.map, &r.path}) {
+    b.put<std::uint8_t>(static_cast<std::uint8_t>(s->size()));
+    b.append(std::vector<std::uint8_t>(s->begin(), s->end()));
+  }
+  b.append(std::vector<std::uint8_t>(r.text.begin(), r.text.end()));
+  return b.data;
+}
+
 fslam::core::GaussianMap small_map(int sh_degree, int feature_dim) {
   fslam::core::GaussianMap map;
   map.sh_degree = sh_degree;
@@ -106,6 +146,24 @@ int main(int argc, char** argv) {
   write(out / "frame/png_png_pose", frame(1, 1, true));
   write(out / "frame/jpeg_png", frame(2, 1, false));
   write(out / "frame/jpeg_raw_pose", frame(2, 0, true));
+
+  RequestSeed r;
+  write(out / "request/render_pose_map_camera", request(r));
+  r.from_frame = true, r.width = 320, r.height = 240, r.channels = 15;
+  write(out / "request/render_frame_all_channels", request(r));
+  r.kind = 3, r.mode = 1, r.points = {10.0f, 20.0f, 300.0f, 200.0f};
+  write(out / "request/segment_points", request(r));
+  r.mode = 2, r.points = {}, r.boxes = {0.0f, 0.0f, 100.0f, 80.0f};
+  write(out / "request/segment_boxes", request(r));
+  r.mode = 3, r.boxes = {}, r.text = "the red chair";
+  write(out / "request/segment_text", request(r));
+  RequestSeed save;
+  save.kind = 1, save.path = "kitchen/monday";
+  write(out / "request/save_folder", request(save));
+  save.kind = 2, save.map = "kitchen.v2", save.path = "";
+  write(out / "request/load_by_name", request(save));
+  save.kind = 4;
+  write(out / "request/export", request(save));
 
   for (auto [sh, d] : {std::pair{0, 16}, std::pair{1, 0}, std::pair{3, 4}}) {
     const fs::path p = out / ("ply/sh" + std::to_string(sh) + "_d" + std::to_string(d) + ".ply");

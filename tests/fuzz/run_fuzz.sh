@@ -23,7 +23,7 @@ SEEDS=0
 # onnx is not in the default list: OpenCV 4.6's ONNX importer (readNetFromONNX) reads past a
 # tensor's data on mutated models within seconds (heap-buffer-overflow inside libopencv_dnn,
 # docs/reliability.md); run it with --only onnx.
-TARGETS=(frame ply trajectory dataset autoencoder config)
+TARGETS=(frame request ply trajectory dataset autoencoder config)
 
 while [[ $# -gt 0 ]]; do
   case "$1" in

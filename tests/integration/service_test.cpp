@@ -437,36 +437,70 @@ TEST_F(Service, MalformedRequestsGetErrorResults) {
   EXPECT_EQ(kill(server_pid_, 0), 0);
 }
 
+// A bare requester on the server's topics, without the client library's resends: writes
+// requests as given and counts the answers to one id.
+class RawRequester {
+ public:
+  RawRequester(const std::string& prefix, std::string name) : name_(std::move(name)) {
+    requests_ = client::make_topic(participant_, &fslam_proto_Request_desc, prefix, "requests");
+    results_ = client::make_topic(participant_, &fslam_proto_Result_desc, prefix, "results");
+    writer_ = client::make_writer(participant_, requests_, client::Delivery::reliable);
+    reader_ = client::make_reader(participant_, results_, client::Delivery::reliable);
+  }
+  // Both ways matched, and a second for the server's side of the match.
+  bool connect() {
+    dds_publication_matched_status_t to_server{};
+    dds_subscription_matched_status_t from_server{};
+    for (int i = 0; i < 500 && (to_server.current_count == 0 || from_server.current_count == 0); ++i) {
+      dds_get_publication_matched_status(writer_.get(), &to_server);
+      dds_get_subscription_matched_status(reader_.get(), &from_server);
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    std::this_thread::sleep_for(std::chrono::seconds(1));
+    return to_server.current_count > 0 && from_server.current_count > 0;
+  }
+  // `request` with this requester's name as its client.
+  bool send(fslam_proto_Request request) {
+    request.client = name_.data();
+    return dds_write(writer_.get(), &request) == DDS_RETCODE_OK;
+  }
+  // The answers to `id` within `seconds`; each must be OK.
+  int answers_for(std::uint64_t id, double seconds) {
+    int n = 0;
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      client::take_each<fslam_proto_Result>(reader_.get(), [&](const fslam_proto_Result& r) {
+        if (name_ == r.client && r.request_id == id) {
+          ++n;
+          EXPECT_EQ(r.status, fslam_proto_RESULT_OK) << r.error;
+        }
+      });
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return n;
+  }
+
+ private:
+  std::string name_;
+  client::Entity participant_ = client::make_participant(DDS_DOMAIN_DEFAULT);
+  client::Entity requests_, results_, writer_, reader_;
+};
+
 // A request sent twice with the same (client, request id), as the client library resends
 // (docs/protocol.md "Resending"), is answered once while the first copy is being answered; a copy
 // that comes after the answer is answered again (that answer may have been lost); a new id is a
 // new request.
 TEST_F(Service, RepeatedRequestIdIsAnsweredOnceWhileInFlight) {
-  using client::Entity;
   std::string out, err;
   ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames 0:10 --prefix " +
                             prefix_ + " --session repeat --map repeat",
                         &out, &err),
             0)
       << out << err;
-  client::Entity participant = client::make_participant(DDS_DOMAIN_DEFAULT);
-  Entity requests = client::make_topic(participant, &fslam_proto_Request_desc, prefix_, "requests");
-  Entity results = client::make_topic(participant, &fslam_proto_Result_desc, prefix_, "results");
-  Entity writer = client::make_writer(participant, requests, client::Delivery::reliable);
-  Entity reader = client::make_reader(participant, results, client::Delivery::reliable);
-  dds_publication_matched_status_t to_server{};
-  dds_subscription_matched_status_t from_server{};
-  for (int i = 0; i < 500 && (to_server.current_count == 0 || from_server.current_count == 0); ++i) {
-    dds_get_publication_matched_status(writer.get(), &to_server);
-    dds_get_subscription_matched_status(reader.get(), &from_server);
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  ASSERT_GT(to_server.current_count, 0u);
-  ASSERT_GT(from_server.current_count, 0u);
-  std::this_thread::sleep_for(std::chrono::seconds(1));  // the server's side matches too
-  char client_name[] = "repeat-client", map[] = "repeat", empty[] = "";
+  RawRequester raw(prefix_, "repeat-client");
+  ASSERT_TRUE(raw.connect());
+  char map[] = "repeat", empty[] = "";
   fslam_proto_Request request{};
-  request.client = client_name;
   request.map_name = map;
   request.path = empty;
   request.kind = fslam_proto_REQUEST_RENDER;
@@ -477,29 +511,15 @@ TEST_F(Service, RepeatedRequestIdIsAnsweredOnceWhileInFlight) {
   request.render.channels = client::kColour | client::kDepth;
   request.render.intrinsics = {1000.f, 1000.f, 639.5f, 479.5f, 1280, 960};
   request.render.T_world_camera.rotation[3] = 1.0;
-  const auto answers_for = [&](std::uint64_t id, double seconds) {
-    int n = 0;
-    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-    while (std::chrono::steady_clock::now() < end) {
-      client::take_each<fslam_proto_Result>(reader.get(), [&](const fslam_proto_Result& r) {
-        if (std::string(r.client) == client_name && r.request_id == id) {
-          ++n;
-          EXPECT_EQ(r.status, fslam_proto_RESULT_OK) << r.error;
-        }
-      });
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    return n;
-  };
   request.request_id = 42;
-  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);
-  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);  // the resend
-  EXPECT_EQ(answers_for(42, 5.0), 1) << "a request id repeated while in flight must be answered once";
-  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);  // a resend after the answer
-  EXPECT_EQ(answers_for(42, 5.0), 1) << "a request id repeated after its answer is answered again";
+  ASSERT_TRUE(raw.send(request));
+  ASSERT_TRUE(raw.send(request));  // the resend
+  EXPECT_EQ(raw.answers_for(42, 5.0), 1) << "a request id repeated while in flight must be answered once";
+  ASSERT_TRUE(raw.send(request));  // a resend after the answer
+  EXPECT_EQ(raw.answers_for(42, 5.0), 1) << "a request id repeated after its answer is answered again";
   request.request_id = 43;
-  ASSERT_EQ(dds_write(writer.get(), &request), DDS_RETCODE_OK);
-  EXPECT_EQ(answers_for(43, 5.0), 1) << "a new id is a new request";
+  ASSERT_TRUE(raw.send(request));
+  EXPECT_EQ(raw.answers_for(43, 5.0), 1) << "a new id is a new request";
 }
 
 // A client that stops sending frames (killed mid-stream) has its session closed after
@@ -671,6 +691,46 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   for (std::size_t i = 0; i < before.images.size(); ++i) {
     EXPECT_EQ(before.images[i].pixels, after.images[i].pixels) << "channel " << before.images[i].channel;
   }
+}
+
+// A load resent after its answer (the answer may have been lost) gets the remembered answer
+// again, and the map is loaded once: saves and loads run once per request id.
+TEST(ServiceResend, ALoadResentAfterItsAnswerIsAnsweredAgainAndRunsOnce) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("resend").string();
+  const std::string prefix = "rsd" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 8 --seed 5", &out, &err), 0) << err;
+  test::ScopedServer server("--prefix " + prefix + " --map-dir " + dir + "/maps", dir + "/server.log");
+  ASSERT_GT(server.pid(), 0);
+  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir + "/seq --prefix " + prefix +
+                            " --session s --map saved",
+                        &out, &err),
+            0)
+      << out << err;
+  {
+    client::Client c(options_for(prefix));
+    std::string folder;
+    ASSERT_TRUE(c.save_map("saved", "", 20000, &folder, &why)) << why;
+  }
+  RawRequester raw(prefix, "load-client");
+  ASSERT_TRUE(raw.connect());
+  char map[] = "twice", path[] = "saved";
+  fslam_proto_Request request{};
+  request.map_name = map;
+  request.path = path;
+  request.kind = fslam_proto_REQUEST_LOAD_MAP;
+  request.render.T_world_camera.rotation[3] = 1.0;
+  request.request_id = 7;
+  ASSERT_TRUE(raw.send(request));
+  EXPECT_EQ(raw.answers_for(7, 5.0), 1);
+  ASSERT_TRUE(raw.send(request));  // a resend after the answer
+  EXPECT_EQ(raw.answers_for(7, 3.0), 1) << "a load resent after its answer must be answered again";
+  server.stop();
+  std::ifstream log(dir + "/server.log");
+  int loads = 0;
+  for (std::string line; std::getline(log, line);) loads += line.find("loaded map 'twice'") != std::string::npos;
+  EXPECT_EQ(loads, 1) << "the resent load must not run again";
 }
 
 }  // namespace
