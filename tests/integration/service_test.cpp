@@ -91,6 +91,19 @@ client::FrameInput frame_input(const core::RgbdFrame& f, std::uint64_t id, const
   return in;
 }
 
+// `fslam stream` (queue policy: every frame tracked) of the sequence in folder `seq` into
+// `session` on `prefix`; `args` adds --frames, --map, --report, ...: the exit code, and the
+// command's output and errors in `out`.
+int stream_sequence(const std::string& seq, const std::string& prefix, const std::string& session,
+                    const std::string& args, std::string* out) {
+  std::string err;
+  const int rc = run_command(fslam_bin() + " stream --policy queue --dataset " + seq + " --prefix " + prefix +
+                                 " --session " + session + " " + args,
+                             out, &err);
+  *out += err;
+  return rc;
+}
+
 class Service : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -118,11 +131,10 @@ pid_t Service::server_pid_ = -1;
 // One client streams 100 frames and receives 100 poses, as accurate as the in-process tracker.
 TEST_F(Service, StreamReceivesEveryPoseWithInProcessAccuracy) {
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --prefix " + prefix_ +
-                            " --session a --out " + dir_ + "/streamed.txt --report " + dir_ + "/a.json",
-                        &out, &err),
+  ASSERT_EQ(stream_sequence(dir_ + "/seq", prefix_, "a",
+                            "--out " + dir_ + "/streamed.txt --report " + dir_ + "/a.json", &out),
             0)
-      << out << err;
+      << out;
   const nlohmann::json report = stream_report(dir_ + "/a.json");
   EXPECT_EQ(report.value("tracked", 0), 100) << out;
   EXPECT_EQ(report.value("skipped", -1), 0) << out;
@@ -379,11 +391,10 @@ TEST_F(Service, KilledClientLeavesTheServerServing) {
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
   ASSERT_EQ(kill(server_pid_, 0), 0) << "the server died with its client";
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames 0:20 --prefix " +
-                            prefix_ + " --session survivor --map survivor --report " + dir_ + "/survivor.json",
-                        &out, &err),
+  ASSERT_EQ(stream_sequence(dir_ + "/seq", prefix_, "survivor",
+                            "--frames 0:20 --map survivor --report " + dir_ + "/survivor.json", &out),
             0)
-      << out << err;
+      << out;
   EXPECT_EQ(stream_report(dir_ + "/survivor.json").value("tracked", 0), 20) << out;
   client::RenderQuery q;
   q.map_name = "doomed";
@@ -409,11 +420,7 @@ TEST_F(Service, MalformedRequestsGetErrorResults) {
   EXPECT_NE(why.find("no map named"), std::string::npos) << why;
   // A map to aim at: ten frames.
   std::string out_text, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames 0:10 --prefix " +
-                            prefix_ + " --session target --map target",
-                        &out_text, &err),
-            0)
-      << out_text << err;
+  ASSERT_EQ(stream_sequence(dir_ + "/seq", prefix_, "target", "--frames 0:10 --map target", &out_text), 0) << out_text;
   q.map_name = "target";
   q.rotation[3] = 2.0;  // not a unit quaternion
   EXPECT_FALSE(c.render(q, &out, 10000, &why));
@@ -492,11 +499,7 @@ class RawRequester {
 // new request.
 TEST_F(Service, RepeatedRequestIdIsAnsweredOnceWhileInFlight) {
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames 0:10 --prefix " +
-                            prefix_ + " --session repeat --map repeat",
-                        &out, &err),
-            0)
-      << out << err;
+  ASSERT_EQ(stream_sequence(dir_ + "/seq", prefix_, "repeat", "--frames 0:10 --map repeat", &out), 0) << out;
   RawRequester raw(prefix_, "repeat-client");
   ASSERT_TRUE(raw.connect());
   char map[] = "repeat", empty[] = "";
@@ -653,11 +656,7 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   const std::string server_args = "--prefix " + prefix + " --map-dir " + dir + "/maps";
   auto server = std::make_unique<test::ScopedServer>(server_args, dir + "/server1.log");
   ASSERT_GT(server->pid(), 0);
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir + "/seq --prefix " + prefix +
-                            " --session s --map kept",
-                        &out, &err),
-            0)
-      << out << err;
+  ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "s", "--map kept", &out), 0) << out;
   client::RenderOutput before, after;
   client::RenderQuery q;
   q.map_name = "kept";
@@ -703,11 +702,7 @@ TEST(ServiceResend, ALoadResentAfterItsAnswerIsAnsweredAgainAndRunsOnce) {
   ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 8 --seed 5", &out, &err), 0) << err;
   test::ScopedServer server("--prefix " + prefix + " --map-dir " + dir + "/maps", dir + "/server.log");
   ASSERT_GT(server.pid(), 0);
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir + "/seq --prefix " + prefix +
-                            " --session s --map saved",
-                        &out, &err),
-            0)
-      << out << err;
+  ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "s", "--map saved", &out), 0) << out;
   {
     client::Client c(options_for(prefix));
     std::string folder;
