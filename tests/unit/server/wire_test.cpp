@@ -27,7 +27,7 @@ struct WireFrame {
     cv::imencode(".png", z, depth);
     msg.frame_id = 3;
     msg.timestamp = 1.5;
-    msg.intrinsics = {0.9 * width, 0.9 * width, width / 2.0, height / 2.0,
+    msg.intrinsics = {0.9f * width, 0.9f * width, width / 2.0f, height / 2.0f,
                       static_cast<std::uint32_t>(width), static_cast<std::uint32_t>(height)};
     msg.depth_scale = 1000.0f;
     msg.colour = {colour_encoding, static_cast<std::uint32_t>(width), static_cast<std::uint32_t>(height), 3, 1,
