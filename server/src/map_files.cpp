@@ -4,11 +4,11 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <system_error>
 #include <thread>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/io/file_writer.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/text_tables.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
@@ -19,11 +19,7 @@ namespace fs = std::filesystem;
 namespace {
 
 bool write_text(const fs::path& path, const std::string& text, std::string* why) {
-  std::ofstream out(path);
-  out << text;
-  out.close();
-  if (!out) return core::fail(why, "cannot write " + path.string());
-  return true;
+  return core::write_file(path.string(), text, why);
 }
 
 std::string format_poses(const std::vector<FramePose>& poses) {
@@ -133,8 +129,10 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
       !write_text(staging / "poses.txt", format_poses(map.poses), why) ||
       !core::write_tum_trajectory((staging / "trajectory.txt").string(), trajectory, why) ||
       !write_text(staging / "camera.txt", camera, why) ||
-      !write_text(staging / kCompleteMarker, "", why)) {
+      !write_text(staging / kCompleteMarker, "", why) || !core::sync_directory(staging.string(), why)) {
+    // A full disk lands here ("No space left on device"): the previous version is untouched.
     fs::remove_all(staging, ec);
+    if (why) *why = "save map: " + *why;
     return false;
   }
   // Swap in. At every point a kill leaves a whole version that recover_map_folder finds: the
@@ -147,7 +145,8 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
   fs::rename(staging, target, ec);
   if (ec) return core::fail(why, "save map: cannot rename into " + dir + ": " + ec.message());
   fs::remove_all(old, ec);
-  return true;
+  // The renames reach the disk before the save is reported done.
+  return core::sync_directory(target.has_parent_path() ? target.parent_path().string() : ".", why);
 }
 
 bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why) {

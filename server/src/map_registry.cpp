@@ -4,6 +4,7 @@
 #include <set>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/server/map_directory.hpp"
 
 namespace fslam::server {
@@ -105,6 +106,20 @@ bool MapRegistry::load(const std::string& name, const std::string& folder, std::
   return true;
 }
 
+bool MapRegistry::enough_disk_for(const StoredMap& stored, std::string* why) const {
+  std::error_code ec;
+  const std::filesystem::space_info space = std::filesystem::space(config_.map_dir, ec);
+  if (ec) return true;  // the save itself then says what is wrong with the folder
+  // map.ply, and poses.txt + trajectory.txt at under 200 bytes a line each (format_poses).
+  const std::uint64_t needed = core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() + 4096;
+  const std::uint64_t reserve = static_cast<std::uint64_t>(config_.min_free_disk_mb) << 20;
+  if (space.available >= needed + reserve) return true;
+  const auto mib = [](std::uint64_t bytes) { return std::to_string((bytes + (1 << 20) - 1) >> 20); };
+  return core::fail(why, "save map: " + mib(space.available) + " MiB free on the disk of " + config_.map_dir +
+                             "; the save needs " + mib(needed) + " MiB and server.min_free_disk_mb keeps " +
+                             std::to_string(config_.min_free_disk_mb) + " MiB free");
+}
+
 bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* why) {
   StoredMap stored;
   std::pair<std::uint64_t, std::size_t> state;
@@ -115,6 +130,7 @@ bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* wh
     stored.camera = map.camera;
     stored.poses = map.poses;
   }
+  if (!enough_disk_for(stored, why)) return false;
   if (!save_map_folder(folder, stored, why)) return false;
   // Only a save to the map's own folder (the one a restart loads it from) counts as saved.
   std::string home, ignored;

@@ -79,6 +79,8 @@ class MapRegistry {
   void save_changed_maps();
 
  private:
+  // server.min_free_disk_mb: room on map_dir's disk for a save of `stored` and the reserve.
+  bool enough_disk_for(const StoredMap& stored, std::string* why) const;
   void log(const std::string& message) const {
     if (log_) log_(message);
   }

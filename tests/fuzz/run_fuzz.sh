@@ -8,6 +8,7 @@
 #   bash tests/fuzz/run_fuzz.sh --only frame,ply --seconds 60
 #   bash tests/fuzz/run_fuzz.sh --only onnx       # finds OpenCV's importer overflow (see below)
 #   bash tests/fuzz/run_fuzz.sh --seeds          # regenerate tests/fuzz/corpus from make_seeds
+#                                                (inputs that crashed, regression-*, are kept)
 #
 # Options: --build-dir DIR (default build-fuzz)  --jobs N  --out DIR (default out/fuzz: the
 # corpus grown by the run, crash files and logs; the committed seed corpus is never modified)
@@ -54,7 +55,8 @@ CORPUS="$ROOT/tests/fuzz/corpus"
 if [[ $SEEDS -eq 1 ]]; then
   models="$ROOT/build/test_models/onnx"
   [[ -d "$models" ]] || models=""
-  rm -rf "$CORPUS"
+  # Generated seeds are rewritten; inputs that once crashed (regression-*) are kept.
+  find "$CORPUS" -type f ! -name 'regression-*' -delete 2>/dev/null || true
   "$BUILD_DIR/bin/fslam_fuzz_make_seeds" "$CORPUS" $models
   mkdir -p "$CORPUS/config" && cp "$ROOT"/configs/presets/*.yaml "$CORPUS/config/"
   exit 0

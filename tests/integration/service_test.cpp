@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <future>
 #include <map>
@@ -581,22 +582,20 @@ TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
 }
 
 // The bounds a client cannot push the server past (server.max_sessions / max_maps / max_prompts,
-// map names as folder names): each refusal is an error result naming the setting.
-TEST(ServiceLimits, SessionsMapsPromptsAndNamesAreBounded) {
+// min_free_disk_mb, map names as folder names): each refusal is an error result naming the setting.
+TEST(ServiceLimits, SessionsMapsPromptsNamesAndDiskAreBounded) {
   test::use_loopback_dds();
   const std::string dir = test::fresh_temp_dir("limits").string();
   const std::string prefix = "lim" + std::to_string(getpid());
   std::string out, err, why;
   ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 6 --seed 2", &out, &err), 0) << err;
-  test::ScopedServer server("--prefix " + prefix +
-                                " --set server.max_sessions=1 --set server.max_maps=2 --set server.max_prompts=2",
+  // A reserve of 1 PB: no disk here has room for a save beside it.
+  test::ScopedServer server("--prefix " + prefix + " --map-dir " + dir + "/maps" +
+                                " --set server.max_sessions=1 --set server.max_maps=2 --set server.max_prompts=2"
+                                " --set server.min_free_disk_mb=1000000000",
                             dir + "/server.log");
   ASSERT_GT(server.pid(), 0);
-  ASSERT_EQ(run_command(fslam_bin() + " stream --policy queue --dataset " + dir + "/seq --prefix " + prefix +
-                            " --session s --map first",
-                        &out, &err),
-            0)
-      << out << err;
+  ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "s", "--map first", &out), 0) << out;
   client::Client c(options_for(prefix));
   EXPECT_FALSE(c.open_session("bad", "../x", 10000, &why));
   EXPECT_NE(why.find("may not start with '.'"), std::string::npos) << why;
@@ -617,6 +616,11 @@ TEST(ServiceLimits, SessionsMapsPromptsAndNamesAreBounded) {
   client::SegmentOutput seg;
   EXPECT_FALSE(c.segment(q, &seg, 20000, &why));
   EXPECT_NE(why.find("server.max_prompts"), std::string::npos) << why;
+  std::string folder;
+  EXPECT_FALSE(c.save_map("first", "", 30000, &folder, &why));
+  EXPECT_NE(why.find("server.min_free_disk_mb keeps 1000000000 MiB free"), std::string::npos) << why;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/maps/first")) << "a refused save wrote its map";
+  EXPECT_FALSE(std::filesystem::exists(dir + "/maps/.first.saving"));
   EXPECT_EQ(kill(server.pid(), 0), 0);
 }
 

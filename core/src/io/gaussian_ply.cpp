@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/io/file_writer.hpp"
 
 namespace fslam::core {
 namespace {
@@ -414,6 +415,21 @@ bool read_ascii(std::istream& in, const std::string& path, const PlyHeader& head
 
 }  // namespace
 
+namespace {
+
+std::string ply_header(std::size_t vertices, const std::vector<std::string>& names) {
+  std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(vertices) + '\n';
+  for (const std::string& name : names) header += "property float " + name + '\n';
+  return header + "end_header\n";
+}
+
+}  // namespace
+
+std::uint64_t gaussian_ply_bytes(const GaussianMap& map) {
+  const std::vector<std::string> names = property_names(sh_coefficients(map.sh_degree), map.feature_dim);
+  return ply_header(map.size(), names).size() + 4ull * names.size() * map.size();
+}
+
 bool write_gaussian_ply(const std::string& path, const GaussianMap& map, std::string* why) {
   std::string bad;
   if (!map.is_consistent(&bad))
@@ -423,11 +439,9 @@ bool write_gaussian_ply(const std::string& path, const GaussianMap& map, std::st
   const std::size_t d = static_cast<std::size_t>(map.feature_dim);
   const std::vector<std::string> names = property_names(static_cast<int>(k), map.feature_dim);
 
-  std::ofstream out(path, std::ios::binary);
-  if (!out) return fail(why, path + ": cannot open for writing");
-  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << n << '\n';
-  for (const std::string& name : names) out << "property float " << name << '\n';
-  out << "end_header\n";
+  FileWriter out;
+  if (!out.open(path, why)) return false;
+  out.write(ply_header(n, names));
 
   constexpr std::size_t kChunkRows = 4096;
   std::vector<char> buffer(kChunkRows * names.size() * 4);
@@ -452,11 +466,9 @@ bool write_gaussian_ply(const std::string& path, const GaussianMap& map, std::st
       for (std::size_t j = 0; j < d; ++j) put(map.features[d * i + j]);
       put(map.filter_3d[i]);
     }
-    out.write(buffer.data(), dst - buffer.data());
+    if (!out.write(buffer.data(), static_cast<std::size_t>(dst - buffer.data()))) break;
   }
-  out.close();
-  if (!out) return fail(why, path + ": write failed");
-  return true;
+  return out.close(why);
 }
 
 bool read_gaussian_ply(const std::string& path, GaussianMap* map, std::string* why) {

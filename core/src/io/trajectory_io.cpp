@@ -1,11 +1,12 @@
 #include "fslam/core/io/trajectory_io.hpp"
 
 #include <cmath>
-#include <fstream>
 #include <iomanip>
+#include <sstream>
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/geometry/se3.hpp"
+#include "fslam/core/io/file_writer.hpp"
 #include "fslam/core/io/text_tables.hpp"
 
 namespace fslam::core {
@@ -34,8 +35,7 @@ bool read_tum_trajectory(const std::string& path, Trajectory* trajectory, std::s
 }
 
 bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory, std::string* why) {
-  std::ofstream out(path);
-  if (!out) return fail(why, path + ": cannot open for writing");
+  std::ostringstream out;
   out << "# timestamp tx ty tz qx qy qz qw (camera-to-world)\n" << std::fixed;
   for (const StampedPose& p : trajectory) {
     const auto t = to_tum(p.T_world_camera);
@@ -43,9 +43,7 @@ bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory,
     for (double v : t) out << ' ' << v;
     out << '\n';
   }
-  out.close();
-  if (!out) return fail(why, path + ": write failed");
-  return true;
+  return write_file(path, out.str(), why);
 }
 
 const StampedPose* nearest_pose(const Trajectory& trajectory, double t, double max_difference) {

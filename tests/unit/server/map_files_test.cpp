@@ -1,5 +1,11 @@
 // Map folders (save / load / path rules) and the render result images the server sends.
+#include <sched.h>
+#include <sys/mount.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -118,6 +124,36 @@ TEST(MapFiles, AnInterruptedSaveRecoversAWholeVersion) {
   EXPECT_FALSE(fs::exists(old));
   // Nothing to recover from: no map, and a clear false.
   EXPECT_FALSE(recover_map_folder((root / "never").string(), &note));
+}
+
+// A full disk: the save fails saying so, the previous version stays whole and nothing is left
+// behind. The disk is a 256 KiB tmpfs in a mount namespace of this test process's own.
+TEST(MapFiles, AFullDiskIsAClearErrorAndKeepsThePreviousVersion) {
+  namespace fs = std::filesystem;
+  const fs::path root = test::fresh_temp_dir("fulldisk") / "disk";
+  fs::create_directories(root);
+  if (geteuid() != 0 || unshare(CLONE_NEWNS) != 0 || mount("none", "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0 ||
+      mount("fslam-test", root.c_str(), "tmpfs", 0, "size=256k") != 0) {
+    GTEST_SKIP() << "needs root and a private mount namespace for a small tmpfs: " << std::strerror(errno);
+  }
+  StoredMap big = small_map();
+  auto gaussians = std::make_shared<core::GaussianMap>(*big.gaussians);
+  while (gaussians->size() < 8000) gaussians->append(*big.gaussians);  // ~1 MB of PLY
+  big.gaussians = gaussians;
+  std::string why;
+  ASSERT_TRUE(save_map_folder((root / "m").string(), small_map(), &why)) << why;
+  EXPECT_FALSE(save_map_folder((root / "m").string(), big, &why));
+  EXPECT_NE(why.find("No space left on device"), std::string::npos) << why;
+  EXPECT_NE(why.find("map.ply"), std::string::npos) << why;
+  StoredMap loaded;
+  ASSERT_TRUE(load_map_folder((root / "m").string(), &loaded, &why)) << why;
+  EXPECT_EQ(loaded.gaussians->means, small_map().gaussians->means);
+  EXPECT_EQ(loaded.poses.size(), 3u);
+  EXPECT_FALSE(save_map_folder((root / "n").string(), big, &why));
+  std::vector<std::string> names;
+  for (const auto& entry : fs::directory_iterator(root)) names.push_back(entry.path().filename().string());
+  EXPECT_EQ(names, std::vector<std::string>{"m"}) << "a failed save left files behind";
+  EXPECT_EQ(umount(root.c_str()), 0) << std::strerror(errno);
 }
 
 TEST(MapFiles, SavingAMapLeavesTheUsersOtherFoldersAlone) {

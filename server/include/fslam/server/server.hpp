@@ -92,6 +92,9 @@ struct ServerConfig {
   std::size_t max_sessions = 16;                // streaming sessions at once
   std::size_t max_maps = 64;                    // maps held in memory (streamed, loaded)
   std::size_t max_prompts = 64;                 // points or boxes in one segment request
+  // A save that would leave less than this free on map_dir's disk is refused before it writes
+  // (a full disk mid-save is an error too, and leaves the previous version). 0 = no reserve.
+  std::size_t min_free_disk_mb = 64;
   // A session that receives no frame for this long is closed as its client's would be (its map
   // stays served); a client killed mid-stream does not keep its session's threads. 0 = never.
   double session_lease_s = 60.0;

@@ -10,6 +10,7 @@
 // deviation, so it is deliberately not read as ours.)
 #pragma once
 
+#include <cstdint>
 #include <string>
 
 #include "fslam/core/map/gaussian_map.hpp"
@@ -17,6 +18,7 @@
 namespace fslam::core {
 
 // Writes `map` (which must be consistent) as binary little-endian PLY. Parent folders must exist.
+// Every write and the sync to disk are checked (file_writer.hpp): a full disk is an error.
 bool write_gaussian_ply(const std::string& path, const GaussianMap& map, std::string* why);
 
 // Reads a 3DGS PLY, binary little-endian or ASCII. Properties are found by name in any order;
@@ -25,5 +27,7 @@ bool write_gaussian_ply(const std::string& path, const GaussianMap& map, std::st
 // Errors name the file: missing required property, non-float property we need, truncated data,
 // vertex count inconsistent with the file size, non-finite values, inconsistent map.
 bool read_gaussian_ply(const std::string& path, GaussianMap* map, std::string* why);
+// The size in bytes of the file write_gaussian_ply writes for `map`.
+std::uint64_t gaussian_ply_bytes(const GaussianMap& map);
 
 }  // namespace fslam::core
