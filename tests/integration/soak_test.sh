@@ -50,6 +50,13 @@ ok = ok and q["ok"] > 0  # renders all answer; segmentations answer "no features
 status = r["status"]
 warm = [x for x in status if x[0] >= min(20.0, status[-1][0] / 3)] if status else []
 tracked = sum(s["tracked"] for s in r["sessions"])
+# Memory over time: one status sample per 10 s (resident MiB, the maps' Gaussians).
+series, next_t = [], 0.0
+for k, (t, rss, g) in enumerate(status):
+    if t >= next_t or k == len(status) - 1:
+        series.append(f"{t:.0f} s {rss:.0f} MiB {g / 1000:.1f}k")
+        next_t = t + 10.0
+print("  memory over time: " + "; ".join(series))
 if warm:
     t0, rss0, g0 = warm[0]
     t1, rss1, g1 = max(warm, key=lambda x: x[1])
