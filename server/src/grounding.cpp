@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/features/onnx_check.hpp"
 
 namespace fslam::server {
 
@@ -65,6 +66,8 @@ bool GroundingDetector::load(const GroundingConfig& config, std::string* why) {
   if (vocabulary_.empty()) return core::fail(why, "grounding model: " + vocab_path + " is empty");
   const auto unk = vocabulary_.find("[UNK]");
   unknown_id_ = unk == vocabulary_.end() ? 0 : unk->second;
+  std::string bad;
+  if (!core::check_onnx_file(config.model, &bad)) return core::fail(why, "grounding model: " + bad);
   auto net = std::make_unique<Net>();
   try {
     net->net = cv::dnn::readNetFromONNX(config.model);

@@ -12,6 +12,7 @@
 
 #include "encoders.hpp"
 #include "fslam/core/error.hpp"
+#include "fslam/core/features/onnx_check.hpp"
 
 namespace fslam::core::detail {
 namespace {
@@ -35,6 +36,8 @@ class OnnxFeatureEncoder final : public FeatureEncoder {
   // Loads the network, picks its outputs and learns their shapes from one blank frame.
   bool load(std::string* why) {
     const std::string prefix = "features.onnx model '" + config_.model_path + "': ";
+    std::string bad;
+    if (!check_onnx_file(config_.model_path, &bad)) return fail(why, prefix + bad);  // before OpenCV reads it
     try {
       net_ = cv::dnn::readNetFromONNX(config_.model_path);
     } catch (const cv::Exception& e) {

@@ -1,0 +1,15 @@
+// A check of a user's ONNX file before OpenCV's importer reads it. OpenCV 4.6's readNetFromONNX
+// copies a tensor's declared shape worth of data without checking that the file holds that much
+// (a heap-buffer-overflow the `onnx` fuzz target finds in seconds, docs/reliability.md). This
+// walks the file's protobuf (model -> graph -> initializers, and the tensors of node attributes,
+// subgraphs included) and refuses, with a reason, a file that is not protobuf or a tensor whose
+// data is shorter than its shape says. It does not validate the model otherwise.
+#pragma once
+
+#include <string>
+
+namespace fslam::core {
+
+bool check_onnx_file(const std::string& path, std::string* why);
+
+}  // namespace fslam::core
