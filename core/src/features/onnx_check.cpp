@@ -4,6 +4,8 @@
 #include <fstream>
 #include <iterator>
 #include <limits>
+#include <set>
+#include <string>
 #include <vector>
 
 #include "fslam/core/error.hpp"
@@ -97,38 +99,83 @@ class Checker {
     Field f;
     while (!w.done()) {
       if (!w.next(&f)) return malformed("model");
-      if (f.number == 7 && f.type == 2 && !graph(f.bytes, 0)) return false;  // ModelProto.graph
+      if (f.number == 7 && f.type == 2 && !graph(f.bytes, 0, {})) return false;  // ModelProto.graph
     }
     return true;
   }
 
  private:
-  bool graph(Bytes b, int depth) {
+  // GraphProto: node = 1, initializer = 5, input = 11. Nodes are checked in order: each reads
+  // only names defined before it (a graph input, an initializer, an earlier node's output or,
+  // in a subgraph, the enclosing graph's), as onnx.proto requires; OpenCV 4.6 dereferences a
+  // null blob on a name nothing defines.
+  bool graph(Bytes b, int depth, std::set<std::string> defined) {
     if (depth > 16) return fail(why_, "subgraphs nested deeper than 16");
     Wire w(b);
     Field f;
+    std::vector<Bytes> nodes;
     while (!w.done()) {
       if (!w.next(&f)) return malformed("graph");
       if (f.type != 2) continue;
-      if (f.number == 5 && !tensor(f.bytes, "initializer")) return false;  // GraphProto.initializer
-      if (f.number == 1 && !node(f.bytes, depth)) return false;            // GraphProto.node
+      if (f.number == 1) nodes.push_back(f.bytes);
+      std::string name;
+      if (f.number == 5 && !tensor(f.bytes, "initializer", &name)) return false;
+      if (f.number == 11 && !first_string(f.bytes, 1, &name)) return malformed("graph input");
+      if (f.number == 5 || f.number == 11) defined.insert(name);
+    }
+    for (const Bytes& n : nodes) {
+      if (!node(n, depth, &defined)) return false;
     }
     return true;
   }
 
-  bool node(Bytes b, int depth) {
+  // NodeProto: input = 1, output = 2, name = 3, op_type = 4, attribute = 5.
+  bool node(Bytes b, int depth, std::set<std::string>* defined) {
     Wire w(b);
     Field f, a;
+    std::vector<std::string> inputs, outputs;
+    std::string name, op;
+    std::vector<Bytes> subgraphs;
     while (!w.done()) {
       if (!w.next(&f)) return malformed("node");
-      if (f.number != 5 || f.type != 2) continue;  // NodeProto.attribute
+      if (f.type != 2) continue;
+      const std::string text(reinterpret_cast<const char*>(f.bytes.data), f.bytes.size);
+      if (f.number == 1) inputs.push_back(text);
+      if (f.number == 2) outputs.push_back(text);
+      if (f.number == 3) name = text;
+      if (f.number == 4) op = text;
+      if (f.number != 5) continue;
       Wire attribute(f.bytes);
       while (!attribute.done()) {
         if (!attribute.next(&a)) return malformed("attribute");
         if (a.type != 2) continue;
         // AttributeProto: t = 5, tensors = 10, g = 6, graphs = 11.
-        if ((a.number == 5 || a.number == 10) && !tensor(a.bytes, "node attribute")) return false;
-        if ((a.number == 6 || a.number == 11) && !graph(a.bytes, depth + 1)) return false;
+        if ((a.number == 5 || a.number == 10) && !tensor(a.bytes, "node attribute", nullptr)) return false;
+        if (a.number == 6 || a.number == 11) subgraphs.push_back(a.bytes);
+      }
+    }
+    for (const std::string& input : inputs) {
+      if (!input.empty() && defined->count(input) == 0) {
+        return fail(why_, "node '" + name + "' (" + op + ") reads '" + input +
+                              "', which no graph input, initializer or earlier node defines");
+      }
+    }
+    for (const Bytes& g : subgraphs) {
+      if (!graph(g, depth + 1, *defined)) return false;
+    }
+    defined->insert(outputs.begin(), outputs.end());
+    return true;
+  }
+
+  // The first string field `number` of a message (ValueInfoProto.name = 1).
+  bool first_string(Bytes b, std::uint64_t number, std::string* out) {
+    Wire w(b);
+    Field f;
+    while (!w.done()) {
+      if (!w.next(&f)) return false;
+      if (f.number == number && f.type == 2) {
+        out->assign(reinterpret_cast<const char*>(f.bytes.data), f.bytes.size);
+        return true;
       }
     }
     return true;
@@ -136,7 +183,7 @@ class Checker {
 
   // TensorProto: dims = 1, data_type = 2, float_data = 4, int32_data = 5, string_data = 6,
   // int64_data = 7, name = 8, raw_data = 9, double_data = 10, uint64_data = 11, data_location = 14.
-  bool tensor(Bytes b, const char* where) {
+  bool tensor(Bytes b, const char* where, std::string* name_out) {
     Wire w(b);
     Field f;
     std::vector<std::uint64_t> dims;
@@ -168,6 +215,7 @@ class Checker {
         default: break;
       }
     }
+    if (name_out != nullptr) *name_out = name;
     const std::string label = "tensor '" + name + "' (" + where + ")";
     if (external) return fail(why_, label + " keeps its data in an external file, which is not supported");
     std::uint64_t count = 1;

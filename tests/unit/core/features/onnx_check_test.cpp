@@ -71,6 +71,27 @@ TEST(OnnxCheck, ATensorShorterThanItsShapeIsRefused) {
             std::string::npos);
 }
 
+// The null dereference the onnx fuzz target found next (crash input kept as
+// tests/fuzz/corpus/onnx/regression-undefined-input): a Conv whose weights' name nothing defines.
+TEST(OnnxCheck, ANodeReadingAnUndefinedNameIsRefused) {
+  const std::string input = bytes(11, bytes(1, "image"));  // a graph input (ValueInfoProto.name)
+  const std::string conv = bytes(1, "image") + bytes(1, "w") + bytes(2, "out") + bytes(3, "conv") + bytes(4, "Conv");
+  EXPECT_EQ(check(model_with_graph(bytes(1, conv) + bytes(5, float_tensor("w", {4, 3, 1, 1}, 48)) + input)), "ok");
+  EXPECT_NE(check(model_with_graph(bytes(1, conv) + bytes(5, float_tensor("v", {4, 3, 1, 1}, 48)) + input))
+                .find("node 'conv' (Conv) reads 'w', which no graph input, initializer or earlier node defines"),
+            std::string::npos);
+  // Order matters: a node may not read what a later node writes.
+  const std::string relu = bytes(1, "out") + bytes(2, "relu_out") + bytes(3, "relu") + bytes(4, "Relu");
+  EXPECT_NE(check(model_with_graph(bytes(1, relu) + bytes(1, conv) + bytes(5, float_tensor("w", {4, 3, 1, 1}, 48)) +
+                                   input))
+                .find("node 'relu' (Relu) reads 'out'"),
+            std::string::npos);
+  // A subgraph sees its enclosing graph's names.
+  const std::string inner = bytes(1, bytes(1, "image") + bytes(2, "y") + bytes(3, "inner") + bytes(4, "Relu"));
+  const std::string node_if = bytes(4, "If") + bytes(5, bytes(1, "then_branch") + bytes(6, inner));
+  EXPECT_EQ(check(model_with_graph(bytes(1, node_if) + input)), "ok");
+}
+
 TEST(OnnxCheck, NotProtobufIsRefused) {
   EXPECT_NE(check("this is not a protobuf").find("not a valid ONNX protobuf"), std::string::npos);
   // A length that runs past the end of the file.

@@ -2,8 +2,10 @@
 // copies a tensor's declared shape worth of data without checking that the file holds that much
 // (a heap-buffer-overflow the `onnx` fuzz target finds in seconds, docs/reliability.md). This
 // walks the file's protobuf (model -> graph -> initializers, and the tensors of node attributes,
-// subgraphs included) and refuses, with a reason, a file that is not protobuf or a tensor whose
-// data is shorter than its shape says. It does not validate the model otherwise.
+// subgraphs included) and refuses, with a reason, a file that is not protobuf, a tensor whose
+// data is shorter than its shape says, or a node that reads a name no graph input, initializer or
+// earlier node defines (OpenCV then dereferences a null blob). It does not validate the model
+// otherwise.
 #pragma once
 
 #include <string>
