@@ -71,7 +71,7 @@ bool GroundingDetector::load(const GroundingConfig& config, std::string* why) {
   auto net = std::make_unique<Net>();
   try {
     net->net = cv::dnn::readNetFromONNX(config.model);
-  } catch (const cv::Exception& e) {
+  } catch (const std::exception& e) {  // cv::Exception, and std::length_error on some bad models
     return core::fail(why, "grounding model " + config.model + ": " + e.what());
   }
   if (net->net.empty()) return core::fail(why, "grounding model " + config.model + ": no network in it");
@@ -114,7 +114,7 @@ bool GroundingDetector::detect(const cv::Mat& rgb, const std::string& text,
       net_->net.setInput(image, "image");
       net_->net.setInput(token_blob, "tokens");
       net_->net.forward(out, std::vector<cv::String>{"boxes", "logits"});
-    } catch (const cv::Exception& e) {
+    } catch (const std::exception& e) {
       return core::fail(why, std::string("grounding model: ") + e.what());
     }
   }

@@ -40,7 +40,7 @@ class OnnxFeatureEncoder final : public FeatureEncoder {
     if (!check_onnx_file(config_.model_path, &bad)) return fail(why, prefix + bad);  // before OpenCV reads it
     try {
       net_ = cv::dnn::readNetFromONNX(config_.model_path);
-    } catch (const cv::Exception& e) {
+    } catch (const std::exception& e) {  // cv::Exception, and std::length_error on some bad models
       return fail(why, prefix + "cannot be loaded by OpenCV dnn: " + e.what());
     }
     if (net_.empty()) return fail(why, prefix + "OpenCV dnn loaded an empty network");
@@ -138,7 +138,7 @@ class OnnxFeatureEncoder final : public FeatureEncoder {
     try {
       net_.setInput(blob);
       net_.forward(*outs, names_);
-    } catch (const cv::Exception& e) {
+    } catch (const std::exception& e) {
       return fail(why, "features.onnx model '" + config_.model_path +
                            "' failed on a [1, 3, " + std::to_string(config_.input_height) + ", " +
                            std::to_string(config_.input_width) + "] input: " + e.what());

@@ -112,6 +112,26 @@ TEST(OnnxCheck, TheEncoderRefusesATruncatedTensorWithTheCheckSReason) {
   EXPECT_NE(why.find("declares 1000 elements"), std::string::npos) << why;
 }
 
+// Every input that once crashed the onnx fuzz target (tests/fuzz/corpus/onnx/regression-*) is
+// a clear error now: the two above, and a model on which readNetFromONNX throws
+// std::length_error (caught with the encoder's other load errors).
+TEST(OnnxCheck, TheFuzzRegressionsAreClearErrors) {
+  const fs::path corpus = fs::path(FSLAM_TEST_COMMON_DIR) / ".." / "fuzz" / "corpus" / "onnx";
+  int tried = 0;
+  for (const auto& entry : fs::directory_iterator(corpus)) {
+    if (entry.path().filename().string().rfind("regression-", 0) != 0) continue;
+    FeatureEncoderConfig config;
+    config.backend = FeatureBackend::onnx;
+    config.onnx.model_path = entry.path().string();
+    config.onnx.input_width = config.onnx.input_height = 32;
+    std::string why;
+    EXPECT_EQ(make_feature_encoder(config, &why), nullptr) << entry.path();
+    EXPECT_FALSE(why.empty()) << entry.path();
+    ++tried;
+  }
+  EXPECT_GE(tried, 2) << "regression inputs missing from " << corpus;
+}
+
 #ifdef FSLAM_TEST_ONNX_DIR
 TEST(OnnxCheck, TheTestModelsPass) {
   int checked = 0;
