@@ -6,7 +6,6 @@
 #   bash tests/fuzz/run_fuzz.sh                  # smoke: 10 s per target (what --test runs)
 #   bash tests/fuzz/run_fuzz.sh --seconds 600    # a long run, 10 minutes per target
 #   bash tests/fuzz/run_fuzz.sh --only frame,ply --seconds 60
-#   bash tests/fuzz/run_fuzz.sh --only onnx       # finds OpenCV's importer overflow (see below)
 #   bash tests/fuzz/run_fuzz.sh --seeds          # regenerate tests/fuzz/corpus from make_seeds
 #                                                (inputs that crashed, regression-*, are kept)
 #
@@ -21,10 +20,7 @@ SECONDS_EACH=10
 JOBS="$(nproc)"
 ONLY=""
 SEEDS=0
-# onnx is not in the default list: OpenCV 4.6's ONNX importer (readNetFromONNX) reads past a
-# tensor's data on mutated models within seconds (heap-buffer-overflow inside libopencv_dnn,
-# docs/reliability.md); run it with --only onnx.
-TARGETS=(frame request ply trajectory dataset autoencoder config)
+TARGETS=(frame request ply trajectory dataset autoencoder onnx config)
 
 while [[ $# -gt 0 ]]; do
   case "$1" in
