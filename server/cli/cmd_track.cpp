@@ -153,7 +153,8 @@ int run_track(const TrackArgs& args) {
   // The last frame's distance from its ground truth: the tracker starts at the first frame's, so
   // on a loop path this is the end-to-start error.
   const auto last_error = [&](const core::Trajectory& trajectory) {
-    const core::StampedPose* gt = core::nearest_pose(dataset->ground_truth(), trajectory.back().timestamp, 0.02);
+    const core::Trajectory truth = dataset->ground_truth();  // gt points into it
+    const core::StampedPose* gt = core::nearest_pose(truth, trajectory.back().timestamp, 0.02);
     return gt ? (gt->T_world_camera.translation() - trajectory.back().T_world_camera.translation()).norm() : -1.0;
   };
   if (args.loop_closure) {

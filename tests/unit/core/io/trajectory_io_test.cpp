@@ -74,7 +74,8 @@ TEST(TrajectoryIo, NearestPoseWithinTheTolerance) {
   EXPECT_EQ(nearest_pose(t, 1.04), &t[1]);
   EXPECT_EQ(nearest_pose(t, 1.11), &t[2]);
   EXPECT_EQ(nearest_pose(t, 1.20), nullptr);  // 100 ms from the nearest
-  EXPECT_EQ(nearest_pose(Trajectory{}, 1.0), nullptr);
+  const Trajectory empty;
+  EXPECT_EQ(nearest_pose(empty, 1.0), nullptr);
 }
 
 }  // namespace

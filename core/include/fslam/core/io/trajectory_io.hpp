@@ -23,5 +23,8 @@ bool write_tum_trajectory(const std::string& path, const Trajectory& trajectory,
 // The pose whose timestamp is nearest to `t`, or nullptr when none is within max_difference
 // seconds (the TUM association tolerance by default).
 const StampedPose* nearest_pose(const Trajectory& trajectory, double t, double max_difference = 0.02);
+// Not on a temporary: the pointer would dangle (`fslam track --loop-closure` read freed memory
+// that way, found by ASan).
+const StampedPose* nearest_pose(Trajectory&& trajectory, double t, double max_difference = 0.02) = delete;
 
 }  // namespace fslam::core
