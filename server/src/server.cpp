@@ -243,7 +243,10 @@ bool Server::open_session(const std::string& session, const std::string& map, bo
   msg.map_name = map_name.data();
   msg.policy = live ? fslam_proto_POLICY_LIVE : fslam_proto_POLICY_QUEUE;
   sessions_->handle_control(msg);
-  if (sessions_->streams_into(session, map)) return true;
+  if (sessions_->streams_into(session, map)) {
+    sessions_->exempt_from_lease(session);
+    return true;
+  }
   return core::fail(why, "the server refused session '" + session + "' on map '" + map +
                              "' (the reason is on " + config_.service_prefix() + "/results)");
 }

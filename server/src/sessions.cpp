@@ -58,6 +58,9 @@ struct Sessions::Session {
   bool closing = false;
   bool preparing_done = false;    // the preparing thread drained `queue` after closing
   Clock::time_point last_frame = Clock::now();  // opened, or the newest frame arrived (guarded by `mutex`)
+  // server.session_lease_s closes the session when its client stops sending; false for a
+  // session the server itself feeds (the ROS 2 bridge), which no dead client can leave behind.
+  bool leased = true;
   RateLimit frame_rate;                          // server.max_session_fps (guarded by `mutex`)
   std::thread preparing, tracking;
   std::unique_ptr<MappingThread> mapping;
@@ -221,7 +224,7 @@ void Sessions::close_idle(double lease_s) {
       bool expired = false;
       {
         std::lock_guard<std::mutex> qlock(it->second->mutex);
-        expired = Clock::now() - it->second->last_frame > lease;
+        expired = it->second->leased && Clock::now() - it->second->last_frame > lease;
       }
       if (!expired) {
         ++it;
@@ -531,6 +534,14 @@ bool Sessions::streams_into(const std::string& session, const std::string& map) 
   std::lock_guard<std::mutex> lock(mutex_);
   const auto it = sessions_.find(session);
   return it != sessions_.end() && it->second->map->name == map;
+}
+
+void Sessions::exempt_from_lease(const std::string& session) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = sessions_.find(session);
+  if (it == sessions_.end()) return;
+  std::lock_guard<std::mutex> qlock(it->second->mutex);
+  it->second->leased = false;
 }
 
 void Sessions::report_rejected(const std::string& session, const std::string& message) {

@@ -64,6 +64,9 @@ class Sessions {
   // In-process sessions (Server::open_session and friends, for the ROS 2 bridge).
   // True when `session` is open and streams into `map`.
   bool streams_into(const std::string& session, const std::string& map) const;
+  // server.session_lease_s no longer closes `session`: the server feeds it (a ROS camera may
+  // pause for longer than the lease, and nothing would open the session again).
+  void exempt_from_lease(const std::string& session);
   // A frame its source could not build: counted and reported as a refused fslam/frames sample.
   void report_rejected(const std::string& session, const std::string& message);
   // Called on a session's tracking thread after each pose it publishes; empty: none.
