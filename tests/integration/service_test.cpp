@@ -166,9 +166,10 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
     ASSERT_TRUE(dataset->load(i, &frames[i], &why)) << why;
     frames[i].depth.convertTo(depths[i], CV_16UC1, 1000.0);
   }
-  client::Client c(options_for(prefix_));
+  // Declared before the client: its listener thread calls the callbacks until it is destroyed.
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> outcomes;
+  client::Client c(options_for(prefix_));
   c.on_pose([&](const client::PoseUpdate& p) {
     if (p.session != "live") return;
     std::lock_guard<std::mutex> lock(mutex);
@@ -222,10 +223,10 @@ TEST_F(Service, ServerPrintsItsEffectiveConfigurationFirst) {
 TEST_F(Service, MalformedFramesGetErrorResults) {
   client::ClientOptions options;
   options.prefix = prefix_;
-  client::Client c(options);
-  std::mutex mutex;
+  std::mutex mutex;  // the state the callbacks write outlives the client (declared first)
   std::vector<std::string> errors;
   client::StatusUpdate status_b;
+  client::Client c(options);
   c.on_result([&](const client::ResultUpdate& r) {
     std::lock_guard<std::mutex> lock(mutex);
     if (!r.ok) errors.push_back(r.error);
@@ -373,9 +374,9 @@ TEST_F(Service, KilledClientLeavesTheServerServing) {
   pid_t doomed = -1;
   std::ifstream(pid_file) >> doomed;
   ASSERT_GT(doomed, 0);
-  client::Client watcher(options_for(prefix_));
-  std::mutex mutex;
+  std::mutex mutex;  // outlives the watcher, whose listener thread calls the callback
   std::uint64_t processed = 0;
+  client::Client watcher(options_for(prefix_));
   watcher.on_status([&](const client::StatusUpdate& s) {
     std::lock_guard<std::mutex> lock(mutex);
     if (s.session == "doomed") processed = s.frames_processed;
@@ -537,9 +538,11 @@ TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
   ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 40 --seed 4", &out, &err), 0) << err;
   test::ScopedServer server("--prefix " + prefix + " --set server.session_lease_s=2", dir + "/server.log");
   ASSERT_GT(server.pid(), 0);
-  client::Client c(options_for(prefix));
+  // Declared before the client: its listener thread calls the callback until it is destroyed
+  // (ASan found the callback writing a destroyed map after a failed assertion).
   std::mutex mutex;
   std::map<std::string, bool> streaming;
+  client::Client c(options_for(prefix));
   c.on_status([&](const client::StatusUpdate& s) {
     std::lock_guard<std::mutex> lock(mutex);
     if (!s.session.empty()) streaming[s.session] = s.streaming;

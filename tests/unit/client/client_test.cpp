@@ -63,9 +63,9 @@ TEST(Client, FramesReachAServerAndPosesComeBack) {
 
   ClientOptions options;
   options.prefix = prefix;
-  Client client(options);
-  std::mutex mutex;
+  std::mutex mutex;  // outlives the client, whose listener thread calls the callback
   std::set<std::uint64_t> received;
+  Client client(options);
   client.on_pose([&](const PoseUpdate& p) {
     std::lock_guard<std::mutex> lock(mutex);
     EXPECT_EQ(p.session, "kitchen");

@@ -232,6 +232,8 @@ class Client {
   // kLastResendMs apart.
   static constexpr int kFirstResendMs = 1000, kLastResendMs = 8000;
 
+  // Callbacks run on the client's listener thread until the client is destroyed: what they
+  // capture must outlive the client (declare it before the client).
   // Called on the client's listener thread for every pose the server publishes.
   void on_pose(std::function<void(const PoseUpdate&)> callback);
   // Called on the listener thread for results addressed to this client that no call is waiting
