@@ -90,6 +90,10 @@ void record_answer(SessionCounts* counts, std::uint64_t frame_id, Clock::time_po
   counts->sent_at.erase(it);
 }
 
+// The first frame of session 0 (map load0) that was tracked, -1 before: what queries render from.
+// Not frame 0: the live policy may skip it when frame 1 arrives before it is taken.
+std::atomic<std::int64_t> first_tracked_load0{-1};
+
 void stream(const Options& o, const Frames& frames, int index, Clock::time_point start, SessionCounts* counts) {
   fc::ClientOptions options;
   options.prefix = o.prefix;
@@ -99,6 +103,8 @@ void stream(const Options& o, const Frames& frames, int index, Clock::time_point
     if (p.session != session) return;
     (p.skipped ? counts->skipped : counts->tracked).fetch_add(1);
     if (!p.skipped) record_answer(counts, p.frame_id, start);
+    std::int64_t none = -1;
+    if (!p.skipped && index == 0) first_tracked_load0.compare_exchange_strong(none, static_cast<std::int64_t>(p.frame_id));
   });
   client.on_result([&](const fc::ResultUpdate& r) {
     if (r.client != session || r.ok) return;
@@ -154,11 +160,18 @@ void stream(const Options& o, const Frames& frames, int index, Clock::time_point
   client.close_session(session, 60000, &why);
 }
 
+// Until map load0 has a tracked frame (at most 30 s; queries then fail and are counted).
+void wait_for_first_pose() {
+  for (int i = 0; i < 300 && first_tracked_load0.load() < 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+}
+
 // A render of map load0 from its first tracked frame (or a promptless segmentation), timed.
 double query_ms(fc::Client& client, bool segment, std::uint32_t w, std::uint32_t h, int timeout_ms, bool* ok) {
   fc::CameraView view;
   view.from_frame = true;
-  view.frame_id = 0;
+  view.frame_id = static_cast<std::uint64_t>(std::max<std::int64_t>(0, first_tracked_load0.load()));
   view.intrinsics = {w * 525.f / 640.f, w * 525.f / 640.f, w / 2.f - 0.5f, h / 2.f - 0.5f, w, h};
   std::string why;
   const auto t0 = Clock::now();
@@ -249,7 +262,7 @@ int main(int argc, char** argv) {
     for (int q = 0; q < o.queriers; ++q) {
       queriers.emplace_back([&, q] {
         fc::Client client(options);
-        std::this_thread::sleep_for(std::chrono::seconds(2));  // the first map has a frame by then
+        wait_for_first_pose();
         for (int i = 0; loading; ++i) {
           bool ok = false;
           query_ms(client, q % 2 == 1, 640, 480, 5000, &ok);
@@ -268,7 +281,7 @@ int main(int argc, char** argv) {
     std::vector<double> probe_ms;
     std::vector<std::array<double, 3>> status;
     int probe_failures = 0;
-    std::this_thread::sleep_for(std::chrono::seconds(2));
+    wait_for_first_pose();
     auto next_status = Clock::now();
     while (seconds_since(start) < o.seconds) {
       bool ok = false;
