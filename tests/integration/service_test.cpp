@@ -468,6 +468,17 @@ class RawRequester {
     std::this_thread::sleep_for(std::chrono::seconds(1));
     return to_server.current_count > 0 && from_server.current_count > 0;
   }
+  // A request of `kind` on map `map` (`path`: save / load folder), identity pose, id `id`; the
+  // strings must outlive it (the IDL's are char*).
+  static fslam_proto_Request request(fslam_proto_RequestKind kind, char* map, char* path, std::uint64_t id) {
+    fslam_proto_Request r{};
+    r.kind = kind;
+    r.map_name = map;
+    r.path = path;
+    r.render.T_world_camera.rotation[3] = 1.0;
+    r.request_id = id;
+    return r;
+  }
   // `request` with this requester's name as its client.
   bool send(fslam_proto_Request request) {
     request.client = name_.data();
@@ -505,18 +516,13 @@ TEST_F(Service, RepeatedRequestIdIsAnsweredOnceWhileInFlight) {
   RawRequester raw(prefix_, "repeat-client");
   ASSERT_TRUE(raw.connect());
   char map[] = "repeat", empty[] = "";
-  fslam_proto_Request request{};
-  request.map_name = map;
-  request.path = empty;
-  request.kind = fslam_proto_REQUEST_RENDER;
+  fslam_proto_Request request = RawRequester::request(fslam_proto_REQUEST_RENDER, map, empty, 42);
   // A render that takes a while (1280x960 colour and depth from frame 5), so that the second copy
   // arrives while the first is being answered.
   request.render.from_frame = true;
   request.render.frame_id = 5;
   request.render.channels = client::kColour | client::kDepth;
   request.render.intrinsics = {1000.f, 1000.f, 639.5f, 479.5f, 1280, 960};
-  request.render.T_world_camera.rotation[3] = 1.0;
-  request.request_id = 42;
   ASSERT_TRUE(raw.send(request));
   ASSERT_TRUE(raw.send(request));  // the resend
   EXPECT_EQ(raw.answers_for(42, 5.0), 1) << "a request id repeated while in flight must be answered once";
@@ -718,12 +724,7 @@ TEST(ServiceResend, ALoadResentAfterItsAnswerIsAnsweredAgainAndRunsOnce) {
   RawRequester raw(prefix, "load-client");
   ASSERT_TRUE(raw.connect());
   char map[] = "twice", path[] = "saved";
-  fslam_proto_Request request{};
-  request.map_name = map;
-  request.path = path;
-  request.kind = fslam_proto_REQUEST_LOAD_MAP;
-  request.render.T_world_camera.rotation[3] = 1.0;
-  request.request_id = 7;
+  const fslam_proto_Request request = RawRequester::request(fslam_proto_REQUEST_LOAD_MAP, map, path, 7);
   ASSERT_TRUE(raw.send(request));
   EXPECT_EQ(raw.answers_for(7, 5.0), 1);
   ASSERT_TRUE(raw.send(request));  // a resend after the answer
