@@ -66,15 +66,11 @@ bool GroundingDetector::load(const GroundingConfig& config, std::string* why) {
   if (vocabulary_.empty()) return core::fail(why, "grounding model: " + vocab_path + " is empty");
   const auto unk = vocabulary_.find("[UNK]");
   unknown_id_ = unk == vocabulary_.end() ? 0 : unk->second;
-  std::string bad;
-  if (!core::check_onnx_file(config.model, &bad)) return core::fail(why, "grounding model: " + bad);
   auto net = std::make_unique<Net>();
-  try {
-    net->net = cv::dnn::readNetFromONNX(config.model);
-  } catch (const std::exception& e) {  // cv::Exception, and std::length_error on some bad models
-    return core::fail(why, "grounding model " + config.model + ": " + e.what());
+  std::string bad;
+  if (!core::read_onnx_net(config.model, &net->net, &bad)) {
+    return core::fail(why, "grounding model " + config.model + ": " + bad);
   }
-  if (net->net.empty()) return core::fail(why, "grounding model " + config.model + ": no network in it");
   std::lock_guard<std::mutex> lock(mutex_);
   config_ = config;
   net_ = std::move(net);

@@ -18,10 +18,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-bool write_text(const fs::path& path, const std::string& text, std::string* why) {
-  return core::write_file(path.string(), text, why);
-}
-
 std::string format_poses(const std::vector<FramePose>& poses) {
   std::string text = "# frame_id timestamp tx ty tz qx qy qz qw (camera-to-world)\n";
   char line[480];
@@ -126,10 +122,10 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
                 map.camera.fx, map.camera.fy, map.camera.cx, map.camera.cy, map.camera.width,
                 map.camera.height);
   if (!core::write_gaussian_ply((staging / "map.ply").string(), *map.gaussians, why) ||
-      !write_text(staging / "poses.txt", format_poses(map.poses), why) ||
+      !core::write_file((staging / "poses.txt").string(), format_poses(map.poses), why) ||
       !core::write_tum_trajectory((staging / "trajectory.txt").string(), trajectory, why) ||
-      !write_text(staging / "camera.txt", camera, why) ||
-      !write_text(staging / kCompleteMarker, "", why) || !core::sync_directory(staging.string(), why)) {
+      !core::write_file((staging / "camera.txt").string(), camera, why) ||
+      !core::write_file((staging / kCompleteMarker).string(), "", why) || !core::sync_directory(staging.string(), why)) {
     // A full disk lands here ("No space left on device"): the previous version is untouched.
     fs::remove_all(staging, ec);
     if (why) *why = "save map: " + *why;

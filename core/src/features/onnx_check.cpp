@@ -270,4 +270,15 @@ bool check_onnx_file(const std::string& path, std::string* why) {
   return true;
 }
 
+bool read_onnx_net(const std::string& path, cv::dnn::Net* net, std::string* why) {
+  if (!check_onnx_file(path, why)) return false;  // before OpenCV reads it
+  try {
+    *net = cv::dnn::readNetFromONNX(path);
+  } catch (const std::exception& e) {
+    return fail(why, "cannot be loaded by OpenCV dnn: " + std::string(e.what()));
+  }
+  if (net->empty()) return fail(why, "OpenCV dnn loaded an empty network");
+  return true;
+}
+
 }  // namespace fslam::core

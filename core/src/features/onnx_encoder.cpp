@@ -37,13 +37,7 @@ class OnnxFeatureEncoder final : public FeatureEncoder {
   bool load(std::string* why) {
     const std::string prefix = "features.onnx model '" + config_.model_path + "': ";
     std::string bad;
-    if (!check_onnx_file(config_.model_path, &bad)) return fail(why, prefix + bad);  // before OpenCV reads it
-    try {
-      net_ = cv::dnn::readNetFromONNX(config_.model_path);
-    } catch (const std::exception& e) {  // cv::Exception, and std::length_error on some bad models
-      return fail(why, prefix + "cannot be loaded by OpenCV dnn: " + e.what());
-    }
-    if (net_.empty()) return fail(why, prefix + "OpenCV dnn loaded an empty network");
+    if (!read_onnx_net(config_.model_path, &net_, &bad)) return fail(why, prefix + bad);
     net_.setPreferableBackend(cv::dnn::DNN_BACKEND_OPENCV);
     net_.setPreferableTarget(cv::dnn::DNN_TARGET_CPU);
 

@@ -10,8 +10,14 @@
 
 #include <string>
 
+#include <opencv2/dnn.hpp>
+
 namespace fslam::core {
 
 bool check_onnx_file(const std::string& path, std::string* why);
+// check_onnx_file, then OpenCV's importer, any exception it throws (cv::Exception, and
+// std::length_error on some bad models) an error: what every ONNX model the product opens goes
+// through (the feature encoder, the grounding detector).
+bool read_onnx_net(const std::string& path, cv::dnn::Net* net, std::string* why);
 
 }  // namespace fslam::core
