@@ -15,6 +15,7 @@
 
 #include "fslam/core/features/feature_autoencoder.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/core/io/keyframe_file.hpp"
 
 namespace fs = std::filesystem;
 
@@ -184,6 +185,22 @@ int main(int argc, char** argv) {
   write(out / "trajectory/tum.txt",
         "# timestamp tx ty tz qx qy qz qw\n1.0 0 0 0 0 0 0 1\n1.033,0.01,0,0.02,0,0.0087,0,0.99996\n"
         "\n1.066\t0.02 0 0.04 0 0.0175 0 0.99985\n");
+
+  {
+    std::vector<fslam::core::DescribedKeyframe> keyframes(2);
+    keyframes[1].id = 40;
+    keyframes[1].T_world_camera.translation() = Eigen::Vector3d(0.1, 0.0, -0.2);
+    for (auto& kf : keyframes) {
+      kf.description.descriptors = cv::Mat(3, 32, CV_8UC1, cv::Scalar(0x5a));
+      kf.description.points = {{0.0f, 0.0f, 1.0f}, {0.1f, 0.0f, 1.2f}, {0.0f, 0.1f, 0.9f}};
+      kf.description.global = {0.5f, -0.5f, 0.5f, -0.5f};
+    }
+    fs::create_directories(out / "keyframes");
+    if (!fslam::core::write_keyframe_file((out / "keyframes/two.bin").string(), keyframes, &why)) {
+      std::fprintf(stderr, "%s\n", why.c_str());
+      return 1;
+    }
+  }
 
   const std::string nul(1, '\0');
   write(out / "dataset/tum",

@@ -175,7 +175,7 @@ void Relocaliser::clear() {
 void Relocaliser::add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world_camera,
                                FrameDescription description) {
   if (description.empty() || description.global.empty()) return;
-  Entry e{id, T_world_camera, std::move(description), {}};
+  Entry e{{id, T_world_camera, std::move(description)}, {}};
   const Eigen::Matrix3f R = T_world_camera.linear().cast<float>();
   const Eigen::Vector3f t = T_world_camera.translation().cast<float>();
   e.points_world.reserve(e.description.points.size());

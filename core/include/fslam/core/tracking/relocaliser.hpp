@@ -14,6 +14,7 @@
 #include <deque>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -60,6 +61,14 @@ struct FrameDescription {
   bool empty() const { return points.empty(); }
 };
 
+// A keyframe as relocalisation keeps it: saved with a map (core/io/keyframe_file.hpp), so that a
+// camera can find itself in the map again after a restart.
+struct DescribedKeyframe {
+  std::int64_t id = 0;
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+  FrameDescription description;
+};
+
 // ORB keypoints with depth in [min_depth, max_depth] and the thumbnail descriptor of `frame`.
 bool describe_frame(const RgbdFrame& frame, const RelocaliserConfig& config, float min_depth,
                     float max_depth, FrameDescription* out, std::string* why);
@@ -85,6 +94,13 @@ class Relocaliser {
 
   // Adds a keyframe at T_world_camera. Keyframes without keypoints are skipped.
   void add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world_camera, FrameDescription description);
+  void add_keyframe(DescribedKeyframe keyframe) {
+    add_keyframe(keyframe.id, keyframe.T_world_camera, std::move(keyframe.description));
+  }
+  // Copies of the keyframes kept, oldest first (what a map saves, keyframe_file.hpp).
+  std::vector<DescribedKeyframe> keyframes() const { return {keyframes_.begin(), keyframes_.end()}; }
+  // The keyframe added last (null when none is kept).
+  const DescribedKeyframe* newest() const { return keyframes_.empty() ? nullptr : &keyframes_.back(); }
   // Place recognition: up to `count` keyframe ids, most similar first, skipping those whose id
   // is in [exclude_from, exclude_to] (a loop closer excludes the recent ones).
   std::vector<std::int64_t> similar_keyframes(const FrameDescription& query, std::size_t count,
@@ -104,10 +120,7 @@ class Relocaliser {
   void clear();
 
  private:
-  struct Entry {
-    std::int64_t id;
-    Eigen::Isometry3d T_world_camera;
-    FrameDescription description;
+  struct Entry : DescribedKeyframe {
     std::vector<Eigen::Vector3f> points_world;  // [K] description.points in the world frame
   };
   struct Index;  // FLANN over the global descriptors, rebuilt when keyframes changed
