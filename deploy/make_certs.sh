@@ -6,7 +6,7 @@
 #   governance.xml / .p7s          domain rules (authentication required, discovery, liveliness and
 #                                  data encrypted, read and write access control), signed by the CA
 #   permissions.xml / .p7s         per identity, signed by the CA: the server alone writes poses,
-#                                  results, status and the map directory; clients write frames,
+#                                  results, status, views and the map directory; clients write frames,
 #                                  session control and requests; observers write session control
 #                                  and requests only (they query maps, never stream)
 #   rogue/                         with --rogue, for tests: an 'intruder' identity and documents
@@ -112,16 +112,16 @@ write_permissions() {
   {
     cat <<XML
 <?xml version="1.0" encoding="UTF-8"?>
-<!-- featureslam permissions (docs/deployment.md): the server alone writes poses, results, status
-     and the map directory; clients write frames, session control and requests; observers write
+<!-- featureslam permissions (docs/deployment.md): the server alone writes poses, results, status,
+     views and the map directory; clients write frames, session control and requests; observers write
      session control and requests only. Anything not granted is denied. -->
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance"
      xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-SECURITY/20170901/omg_shared_ca_permissions.xsd">
   <permissions>
 XML
-    for id in $2; do grant "server_$id" "$(subject_name "$id")" "poses results status maps" "frames session requests maps"; done
-    for id in $3; do grant "client_$id" "$(subject_name "$id")" "frames session requests" "poses results status maps"; done
-    for id in $4; do grant "observer_$id" "$(subject_name "$id")" "session requests" "poses results status maps"; done
+    for id in $2; do grant "server_$id" "$(subject_name "$id")" "poses results status views maps" "frames session requests maps"; done
+    for id in $3; do grant "client_$id" "$(subject_name "$id")" "frames session requests" "poses results status views maps"; done
+    for id in $4; do grant "observer_$id" "$(subject_name "$id")" "session requests" "poses results status views maps"; done
     for id in ${5:-}; do grant "all_$id" "$(subject_name "$id")" "*" "*"; done
     cat <<XML
   </permissions>

@@ -104,6 +104,35 @@ void fill_request(RequestStrings* strings, std::uint64_t id, fslam_proto_Request
   msg->path = strings->path.data();
 }
 
+// A result's or a view's images, pose and camera as a RenderOutput (images decoded); false
+// with `why` when an image does not decode.
+bool to_render_output(const dds_sequence_fslam_proto_Image& images, const fslam_proto_Pose& pose,
+                      const fslam_proto_Intrinsics& intrinsics, RenderOutput* out, std::string* why) {
+  for (std::uint32_t i = 0; i < images._length; ++i) {
+    RenderedImage image;
+    if (!decode_result_image(images._buffer[i], &image))
+      return fail(why, "result image " + std::to_string(i) + " could not be decoded");
+    out->images.push_back(std::move(image));
+  }
+  for (int k = 0; k < 3; ++k) out->translation[k] = pose.translation[k];
+  for (int k = 0; k < 4; ++k) out->rotation[k] = pose.rotation[k];
+  out->intrinsics = from_wire(intrinsics);
+  return true;
+}
+
+// Images come in channel bit order (docs/protocol.md): gives each of `out`'s images its bit of
+// `channels`; false when their count does not match.
+bool label_channels(std::uint32_t channels, RenderOutput* out, std::string* why) {
+  std::size_t next = 0;
+  for (std::uint32_t bit = 1; bit <= kOpacity; bit <<= 1) {
+    if ((channels & bit) != 0 && next < out->images.size()) out->images[next++].channel = bit;
+  }
+  if (next != out->images.size() || next == 0) {
+    return fail(why, "the server sent " + std::to_string(out->images.size()) + " images for the channels asked");
+  }
+  return true;
+}
+
 }  // namespace
 
 Client::Client(const ClientOptions& options) : id_(make_client_id()) {
@@ -128,7 +157,15 @@ Client::Client(const ClientOptions& options) : id_(make_client_id()) {
   pose_reader_ = make_reader(participant_, poses_topic_, Delivery::reliable);
   result_reader_ = make_reader(participant_, results_topic_, Delivery::reliable);
   status_reader_ = make_reader(participant_, status_topic_, Delivery::best_effort);
-  waitset_ = make_waitset(participant_, {&pose_reader_, &result_reader_, &status_reader_});
+  try {
+    views_topic_ = make_topic(participant_, &fslam_proto_View_desc, prefix, "views");
+    view_reader_ = make_reader(participant_, views_topic_, Delivery::newest);
+  } catch (const DdsError& e) {
+    // DDS Security permissions made before views existed: everything but views still works.
+    if (e.code() != DDS_RETCODE_NOT_ALLOWED_BY_SECURITY) throw;
+  }
+  waitset_ = view_reader_ ? make_waitset(participant_, {&pose_reader_, &result_reader_, &status_reader_, &view_reader_})
+                          : make_waitset(participant_, {&pose_reader_, &result_reader_, &status_reader_});
   addresses_.insert(id_);
   listener_ = std::thread([this] { listen(); });
 }
@@ -154,18 +191,24 @@ void Client::on_status(std::function<void(const StatusUpdate&)> callback) {
   status_callback_ = std::move(callback);
 }
 
-bool Client::open_session(const std::string& session, const std::string& map_name, int timeout_ms,
-                          std::string* why, const SessionOptions& options) {
-  return control(session, map_name, true, false, options.policy, timeout_ms, why);
+void Client::on_view(std::function<void(const ViewUpdate&)> callback) {
+  std::lock_guard<std::mutex> lock(callback_mutex_);
+  view_callback_ = std::move(callback);
 }
 
-bool Client::close_session(const std::string& session, int timeout_ms, std::string* why) {
-  return control(session, "", false, false, FramePolicy::server_default, timeout_ms, why);
+bool Client::open_session(const std::string& session, const std::string& map_name, int timeout_ms,
+                          std::string* why, const SessionOptions& options) {
+  return control(session, map_name, true, false, options, timeout_ms, why);
+}
+
+bool Client::close_session(const std::string& session, int timeout_ms, std::string* why,
+                           std::uint32_t refine_steps) {
+  return control(session, "", false, false, {}, timeout_ms, why, refine_steps);
 }
 
 bool Client::attach_map(const std::string& map_name, int timeout_ms, std::string* why) {
   if (map_name.empty()) return fail(why, "attach: no map name");
-  return control(id_, map_name, true, true, FramePolicy::server_default, timeout_ms, why);
+  return control(id_, map_name, true, true, {}, timeout_ms, why);
 }
 
 std::uint64_t Client::new_request_id() {
@@ -174,7 +217,9 @@ std::uint64_t Client::new_request_id() {
 }
 
 bool Client::control(const std::string& session, const std::string& map_name, bool open,
-                     bool attach_only, FramePolicy policy, int timeout_ms, std::string* why) {
+                     bool attach_only, const SessionOptions& options, int timeout_ms, std::string* why,
+                     std::uint32_t refine_steps) {
+  const FramePolicy policy = options.policy;
   if (session.empty()) return fail(why, "session control: no session name");
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
@@ -190,6 +235,12 @@ bool Client::control(const std::string& session, const std::string& map_name, bo
   msg.policy = policy == FramePolicy::live    ? fslam_proto_POLICY_LIVE
                : policy == FramePolicy::queue ? fslam_proto_POLICY_QUEUE
                                               : fslam_proto_POLICY_SERVER_DEFAULT;
+  msg.mode = options.mode == SessionMode::localise ? fslam_proto_SESSION_LOCALISE
+             : options.mode == SessionMode::extend ? fslam_proto_SESSION_EXTEND
+                                                   : fslam_proto_SESSION_MAP;
+  msg.view_rate_hz = static_cast<float>(options.view_rate_hz);
+  msg.view_channels = options.view_channels;
+  msg.refine_steps = refine_steps;
   const std::string what = attach_only ? "attach to map '" + map_name + "'"
                                        : std::string(open ? "open" : "close") + " session '" + session + "'";
   Answer answer;
@@ -272,15 +323,8 @@ bool Client::render(const RenderQuery& query, RenderOutput* output, int timeout_
     return false;
   }
   *output = std::move(answer.render);
-  // Images come in channel bit order (docs/protocol.md): give each its bit.
-  std::size_t next = 0;
-  for (std::uint32_t bit = 1; bit <= kOpacity; bit <<= 1) {
-    if ((query.channels & bit) != 0 && next < output->images.size()) output->images[next++].channel = bit;
-  }
-  if (next != output->images.size() || next == 0) {
-    return fail(why, "render map '" + map + "': the server sent " +
-                         std::to_string(output->images.size()) + " images for the channels asked");
-  }
+  std::string reason;
+  if (!label_channels(query.channels, output, &reason)) return fail(why, "render map '" + map + "': " + reason);
   return true;
 }
 
@@ -429,6 +473,16 @@ bool Client::map_folder_request(bool save, const std::string& map_name, const st
   return true;
 }
 
+bool Client::refine_map(const std::string& map_name, std::uint32_t steps, int timeout_ms, std::string* why) {
+  fslam_proto_Request msg{};
+  RequestStrings strings{id_, map_name, ""};
+  fill_request(&strings, new_request_id(), fslam_proto_REQUEST_REFINE_MAP, &msg);
+  msg.refine_steps = steps;
+  Answer answer;
+  return call(request_writer_.get(), &msg, id_, msg.request_id, "refine map '" + map_name + "'", timeout_ms,
+              &answer, why);
+}
+
 std::uint32_t Client::matched_servers() const {
   dds_publication_matched_status_t matched{};
   dds_get_publication_matched_status(frame_writer_ ? frame_writer_.get() : request_writer_.get(), &matched);
@@ -451,6 +505,7 @@ void Client::listen() {
       update.frames_skipped = st.frames_skipped;
       update.last_skip_reason = st.last_skip_reason ? st.last_skip_reason : "";
       update.frame_policy = st.frame_policy ? st.frame_policy : "";
+      update.mode = st.mode ? st.mode : "";
       update.queue_ms_p50 = st.queue_ms_p50;
       update.queue_ms_p99 = st.queue_ms_p99;
       update.map_gaussians = st.map_gaussians;
@@ -483,17 +538,8 @@ void Client::listen() {
         Answer& answer = *waiting->second;
         answer.path = r.path ? r.path : "";
         RenderOutput& out = answer.render;
-        for (std::uint32_t i = 0; i < r.images._length && update.ok; ++i) {
-          RenderedImage image;
-          if (!decode_result_image(r.images._buffer[i], &image)) {
-            update.ok = false;
-            update.error = "result image " + std::to_string(i) + " could not be decoded";
-          }
-          out.images.push_back(std::move(image));
-        }
-        for (int k = 0; k < 3; ++k) out.translation[k] = r.T_world_camera.translation[k];
-        for (int k = 0; k < 4; ++k) out.rotation[k] = r.T_world_camera.rotation[k];
-        out.intrinsics = from_wire(r.intrinsics);
+        if (update.ok && !to_render_output(r.images, r.T_world_camera, r.intrinsics, &out, &update.error))
+          update.ok = false;
         out.map_version = r.map_version;
         out.map_gaussians = r.map_gaussians;
         answer.gaussians_first = r.gaussians_first;
@@ -507,6 +553,23 @@ void Client::listen() {
       } else if (result_callback_ && update.request_id < kFirstRequestId && addresses_.count(update.client) != 0) {
         result_callback_(update);
       }
+    });
+    if (view_reader_) take_each<fslam_proto_View>(view_reader_.get(), [&](const fslam_proto_View& v) {
+      ViewUpdate update;
+      update.session = v.session ? v.session : "";
+      {
+        std::lock_guard<std::mutex> lock(callback_mutex_);
+        if (!view_callback_ || addresses_.count(update.session) == 0) return;  // not our session's
+      }
+      update.map_name = v.map_name ? v.map_name : "";
+      update.frame_id = v.frame_id;
+      update.timestamp = v.timestamp;
+      if (to_render_output(v.images, v.T_world_camera, v.intrinsics, &update.render, &update.error))
+        label_channels(v.channels, &update.render, &update.error);
+      update.render.map_version = v.map_version;
+      update.render.map_gaussians = v.map_gaussians;
+      std::lock_guard<std::mutex> lock(callback_mutex_);
+      if (view_callback_) view_callback_(update);
     });
     take_each<fslam_proto_PoseStamped>(pose_reader_.get(), [&](const fslam_proto_PoseStamped& p) {
       PoseUpdate update;

@@ -68,18 +68,20 @@ int run_status(const StatusArgs& args) {
     return fail("no status from a server on prefix '" + args.client.prefix + "' within " + seconds +
                 " s (is fslam-server running with that prefix?)");
   }
-  std::printf("%-16s %-14s %-6s %9s %8s %8s %9s %9s %5s %8s %8s %31s %8s\n", "map", "session", "policy",
+  std::printf("%-16s %-14s %-8s %-6s %9s %8s %8s %9s %9s %5s %8s %8s %31s %8s\n", "map", "session", "mode", "policy",
               "gaussians", "version", "tracked", "received", "processed", "queue", "skipped", "dropped",
               "ms p50/p99: decode track map", "rss MiB");
   for (const auto& [key, s] : latest) {
+    // A session's report (a localise session's map may have no streaming session of its own).
+    const bool session = !s.session.empty();
     char timing[64] = "-";
-    if (s.streaming) {
+    if (session) {
       std::snprintf(timing, sizeof timing, "%.0f/%.0f %.0f/%.0f %.0f/%.0f", s.decode_ms_p50,
                     s.decode_ms_p99, s.track_ms_p50, s.track_ms_p99, s.map_ms_p50, s.map_ms_p99);
     }
-    std::printf("%-16s %-14s %-6s %9llu %8llu %8llu %9llu %9llu %5u %8llu %8llu %31s %8.0f\n",
-                s.map_name.c_str(), s.streaming ? s.session.c_str() : "(idle)",
-                s.streaming ? s.frame_policy.c_str() : "-",
+    std::printf("%-16s %-14s %-8s %-6s %9llu %8llu %8llu %9llu %9llu %5u %8llu %8llu %31s %8.0f\n",
+                s.map_name.c_str(), session ? s.session.c_str() : "(idle)",
+                session ? s.mode.c_str() : "-", session ? s.frame_policy.c_str() : "-",
                 static_cast<unsigned long long>(s.map_gaussians),
                 static_cast<unsigned long long>(s.map_version),
                 static_cast<unsigned long long>(s.frames_tracked),
@@ -122,6 +124,22 @@ int run_load(const MapFileArgs& args) {
   client::Client client(options);
   if (!client.load_map(args.map, args.folder, args.client.timeout_ms(), &why)) return fail(why);
   std::printf("the server now serves '%s'\n", args.map.c_str());
+  return 0;
+}
+
+struct RefineArgs {
+  ClientArgs client;
+  std::string map;
+  std::uint32_t steps = 500;
+};
+
+int run_refine(const RefineArgs& args) {
+  std::string why;
+  client::ClientOptions options;
+  if (!args.client.locate(args.map, false, &options, &why)) return fail(why);
+  client::Client client(options);
+  if (!client.refine_map(args.map, args.steps, args.client.timeout_ms(), &why)) return fail(why);
+  std::printf("refined map '%s' on the server: %u steps\n", args.map.c_str(), args.steps);
   return 0;
 }
 
@@ -191,6 +209,15 @@ void add_map_commands(CLI::App& root, CommandList* commands) {
   load->add_option("--folder", load_args->folder,
                    "Folder under the server's --map-dir (default: the map's name)");
   commands->push_back({load, [load_args] { return run_load(*load_args); }});
+
+  auto* refine = root.add_subcommand(
+      "refine-map", "Post-trajectory refinement of a map the server streamed (no session streaming into it)");
+  auto refine_args = std::make_shared<RefineArgs>();
+  add_client_options(refine, &refine_args->client);
+  refine->add_option("--map", refine_args->map, "The map to refine")->required();
+  refine->add_option("--steps", refine_args->steps, "Gradient steps (at most the server's server.max_refine_steps)")
+      ->capture_default_str();
+  commands->push_back({refine, [refine_args] { return run_refine(*refine_args); }});
 }
 
 }  // namespace fslam::cli

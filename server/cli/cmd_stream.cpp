@@ -6,6 +6,7 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <memory>
@@ -24,7 +25,9 @@
 #include "fslam/client/client.hpp"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/eval/ate.hpp"
+#include "fslam/core/io/image_io.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
+#include "fslam/core/tracking/tracker.hpp"
 #include "stream_rosbag2.hpp"
 
 namespace fslam::cli {
@@ -39,6 +42,10 @@ struct StreamArgs {
   std::string report;        // JSON summary
   std::string prefix = "fslam";
   std::string policy = "server";  // live, queue, or the server's default
+  std::string mode = "map";       // map (a new map), localise or extend (in a served map)
+  double views_hz = 0.0;          // localise: renders at the localised poses, per second at most
+  std::string views_out;          // folder for them (view_<frame>.png colour, _depth.png 16-bit mm)
+  std::uint32_t refine = 0;       // map, extend: refinement steps at close
   DiscoveryArgs discovery;
   int timeout_s = 60;        // for the last poses after the last frame
   int window = 32;           // queue policy: frames sent and not answered yet, at most
@@ -130,8 +137,10 @@ client::FrameInput frame_input(const core::RgbdFrame& frame, double depth_scale,
 
 // What the poses that came back say, after the stream.
 struct StreamOutcome {
-  core::Trajectory trajectory;
+  core::Trajectory trajectory;    // tracked frames (localise, extend: lost ones left out)
   std::size_t skipped = 0, errors = 0, missing = 0;
+  std::size_t lost = 0;           // localise, extend: frames lost (counted, not in trajectory)
+  std::size_t views = 0;          // localise --views: renders received at localised poses
   double elapsed = 0.0;  // seconds from the first frame to the last pose
 };
 
@@ -155,6 +164,7 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
                            {"skipped", o.skipped},      {"errors", o.errors},
                            {"no_answer", o.missing},    {"seconds_to_last_pose", o.elapsed},
                            {"policy", args.policy},     {"rate", args.rate},
+                           {"mode", args.mode},
                            {"latency", latency_json(latency)}};
   report["tracked_frame_ids"] = tracked_ids;
   if (dataset.has_ground_truth() && !o.trajectory.empty()) {
@@ -163,6 +173,34 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
       std::printf("ATE RMSE %.4f m (mean %.4f) over %zu tracked frames, SE(3)\n", ate.rmse, ate.mean,
                   ate.pairs);
       report["ate"] = {{"rmse_m", ate.rmse}, {"mean_m", ate.mean}, {"pairs", ate.pairs}};
+    }
+  }
+  if (args.mode != "map") {
+    // The map's world is the ground truth's when it was streamed with it (the first frame's
+    // pose), so a localised pose is compared with no alignment.
+    report["lost"] = o.lost;
+    report["views"] = o.views;
+    std::printf("localised %zu of %zu frames in the map (%zu lost)", o.trajectory.size(), n, o.lost);
+    if (args.views_hz > 0) std::printf("; %zu views received", o.views);
+    std::printf("\n");
+    if (dataset.has_ground_truth()) {
+      std::map<double, Eigen::Isometry3d> truth;
+      for (const core::StampedPose& p : dataset.ground_truth()) truth[p.timestamp] = p.T_world_camera;
+      std::vector<double> errors_m;
+      for (const core::StampedPose& p : o.trajectory) {
+        const auto it = truth.find(p.timestamp);
+        if (it != truth.end()) errors_m.push_back((p.T_world_camera.translation() - it->second.translation()).norm());
+      }
+      std::sort(errors_m.begin(), errors_m.end());
+      if (!errors_m.empty()) {
+        const double median = errors_m[errors_m.size() / 2], worst = errors_m.back();
+        const auto within = static_cast<std::size_t>(
+            std::lower_bound(errors_m.begin(), errors_m.end(), 0.05) - errors_m.begin());
+        std::printf("position error against ground truth, no alignment: median %.4f m, max %.4f m, "
+                    "%zu of %zu within 5 cm\n", median, worst, within, errors_m.size());
+        report["localisation"] = {{"median_error_m", median}, {"max_error_m", worst},
+                                  {"within_5cm", within}, {"compared", errors_m.size()}};
+      }
     }
   }
   if (!args.report.empty()) {
@@ -194,6 +232,14 @@ bool policy_of(const std::string& policy, client::SessionOptions* options) {
   return true;
 }
 
+// --mode: map, localise or extend; false for anything else.
+bool mode_of(const std::string& mode, client::SessionOptions* options) {
+  if (mode == "localise") options->mode = client::SessionMode::localise;
+  else if (mode == "extend") options->mode = client::SessionMode::extend;
+  else if (mode != "map") return false;
+  return true;
+}
+
 // SIGUSR1 pauses sending frames and the next one resumes it (odd count: paused). The client stays
 // connected while paused, unlike a stopped process, whose participant lease runs out.
 volatile std::sig_atomic_t pause_toggles = 0;
@@ -212,17 +258,48 @@ int run_stream(const StreamArgs& args) {
   if (rate < 0) return fail("--rate must be a positive number of frames per second or 'max'");
   client::SessionOptions session_options;
   if (!policy_of(args.policy, &session_options)) return fail("--policy must be live, queue or server");
+  if (!mode_of(args.mode, &session_options)) return fail("--mode must be map, localise or extend");
+  const bool localise = session_options.mode == client::SessionMode::localise;
+  const bool new_map = session_options.mode == client::SessionMode::map;
+  if (args.views_hz != 0.0 && !(localise && args.views_hz > 0.0 && std::isfinite(args.views_hz)))
+    return fail("--views needs --mode localise and a positive number of views per second");
+  if (!args.views_out.empty() && args.views_hz == 0.0) return fail("--views-out needs --views");
+  if (args.refine > 0 && localise) return fail("--refine needs a session that maps (--mode map or extend)");
+  session_options.view_rate_hz = args.views_hz;
+  if (!args.views_out.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(args.views_out, ec);
+    if (ec) return fail("--views-out " + args.views_out + ": " + ec.message());
+  }
   // The instance that serves the map, or creates it (the map directory, docs/deployment.md).
   const std::string map = args.map.empty() ? args.session : args.map;
   client::ClientOptions copts;
-  if (!locate_service(args.prefix, args.discovery, map, true, 10000, &copts, &why)) return fail(why);
+  if (!locate_service(args.prefix, args.discovery, map, new_map, 10000, &copts, &why)) return fail(why);
   client::Client client(copts);
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> poses;
   std::map<std::uint64_t, SendTimes> sent;
   std::map<std::uint64_t, TimePoint> arrived;
   std::map<std::uint64_t, std::string> skipped;  // frame -> why (live policy)
-  std::atomic<std::size_t> errors{0};
+  std::atomic<std::size_t> errors{0}, views{0};
+  client.on_view([&](const client::ViewUpdate& v) {
+    if (v.session != args.session) return;
+    ++views;
+    if (args.views_out.empty()) return;
+    if (!v.error.empty()) return (void)std::fprintf(stderr, "\nview of frame %llu: %s\n",
+                                                    static_cast<unsigned long long>(v.frame_id), v.error.c_str());
+    for (const client::RenderedImage& image : v.render.images) {
+      const int h = static_cast<int>(image.height), w = static_cast<int>(image.width);
+      const std::string stem = args.views_out + "/view_" + std::to_string(v.frame_id);
+      std::string write_why;
+      bool ok = true;
+      if (image.channel == client::kColour)
+        ok = core::write_image(stem + ".png", cv::Mat(h, w, CV_8UC3, const_cast<std::uint8_t*>(image.pixels.data())), &write_why);
+      else if (image.channel == client::kDepth)
+        ok = core::write_image(stem + "_depth.png", cv::Mat(h, w, CV_16UC1, const_cast<std::uint8_t*>(image.pixels.data())), &write_why);
+      if (!ok) std::fprintf(stderr, "\n%s\n", write_why.c_str());
+    }
+  });
   client.on_pose([&](const client::PoseUpdate& p) {
     if (p.session != args.session) return;
     const auto now = std::chrono::steady_clock::now();
@@ -306,15 +383,21 @@ int run_stream(const StreamArgs& args) {
     std::lock_guard<std::mutex> lock(mutex);
     for (const auto& [id, t] : arrived) last_pose = std::max(last_pose, t);
   }
-  // Closing waits for the server to finish mapping what it accepted.
-  if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why)) {
+  // Closing waits for the server to finish mapping what it accepted (and to refine, with --refine).
+  if (args.refine > 0) std::fprintf(stderr, "closing: the server maps what is left, then refines %u steps\n", args.refine);
+  if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why, args.refine)) {
     std::fprintf(stderr, "close: %s\n", why.c_str());
+    if (args.refine > 0) return fail("close with --refine " + std::to_string(args.refine) + ": " + why);
   }
   StreamOutcome outcome;
   std::vector<std::uint64_t> tracked_ids;
   {
     std::lock_guard<std::mutex> lock(mutex);
     for (const auto& [id, p] : poses) {
+      if (!new_map && p.state == static_cast<int>(core::TrackingState::lost)) {
+        ++outcome.lost;
+        continue;
+      }
       core::StampedPose sp;
       sp.timestamp = p.timestamp;
       const Eigen::Quaterniond q(p.rotation[3], p.rotation[0], p.rotation[1], p.rotation[2]);
@@ -327,7 +410,8 @@ int run_stream(const StreamArgs& args) {
   }
   outcome.elapsed = std::chrono::duration<double>(last_pose - start).count();
   outcome.errors = errors.load();
-  outcome.missing = n - std::min(n, outcome.trajectory.size() + outcome.skipped + outcome.errors);
+  outcome.views = views.load();
+  outcome.missing = n - std::min(n, outcome.trajectory.size() + outcome.lost + outcome.skipped + outcome.errors);
   return report_stream(args, *dataset, outcome, latency_of(sent, arrived, poses), tracked_ids);
 }
 
@@ -348,7 +432,22 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
                   "Milliseconds within which colour and depth header stamps pair")
       ->capture_default_str();
   app->add_option("--session", args->session, "Session name")->capture_default_str();
-  app->add_option("--map", args->map, "Map to create (default: the session name); it must not exist on the server yet");
+  app->add_option("--map", args->map,
+                  "Map to create (default: the session name; it must not exist on the server yet), or "
+                  "with --mode localise or extend the served map to localise in or extend");
+  app->add_option("--mode", args->mode,
+                  "map: build a new map; localise: track against a served map without changing "
+                  "it (the first frame, and any lost one, relocalises against its keyframes); "
+                  "extend: relocalise in a served map, then keep mapping into it")
+      ->capture_default_str();
+  app->add_option("--views", args->views_hz,
+                  "With --mode localise: the server renders the map at each localised pose, at most "
+                  "this many per second, and pushes it back (colour and depth; the AR overlay)");
+  app->add_option("--views-out", args->views_out,
+                  "Folder for the views: view_<frame>.png (colour) and view_<frame>_depth.png (16-bit, mm)");
+  app->add_option("--refine", args->refine,
+                  "Map and extend sessions: at close, the server refines the map this many steps "
+                  "(post-trajectory refinement) before it answers; raise --timeout for many");
   app->add_option("--rate", args->rate, "Frames per second, or max")->capture_default_str();
   app->add_option("--out", args->out, "Trajectory of the received poses (TUM)");
   app->add_option("--report", args->report,

@@ -403,6 +403,7 @@ void add_server_fields(SettingsTable<ServerConfig>* f) {
   server.add("max_sessions", &ServerConfig::max_sessions);
   server.add("max_maps", &ServerConfig::max_maps);
   server.add("max_prompts", &ServerConfig::max_prompts);
+  server.add("max_refine_steps", &ServerConfig::max_refine_steps);
   server.add("min_free_disk_mb", &ServerConfig::min_free_disk_mb);
   server.add("session_lease_s", &ServerConfig::session_lease_s);
   server.add("max_session_fps", &ServerConfig::max_session_fps);

@@ -10,6 +10,7 @@
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/file_writer.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/core/io/keyframe_file.hpp"
 #include "fslam/core/io/text_tables.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 
@@ -47,6 +48,7 @@ fs::path staging_of(const fs::path& dir) { return dir.parent_path() / ("." + dir
 fs::path previous_of(const fs::path& dir) { return dir.parent_path() / ("." + dir.filename().string() + ".old"); }
 // Written last into the staging folder: a staging folder without it is half a save.
 constexpr const char* kCompleteMarker = ".complete";
+constexpr const char* kKeyframeFile = "keyframes.bin";
 
 // Fault tests only (tests/integration/save_kill_test.sh): FSLAM_FAULT_SAVE_PAUSE_MS widens the
 // steps of the swap so that a kill lands inside them; unset (always, in use) it costs nothing.
@@ -125,6 +127,8 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
       !core::write_file((staging / "poses.txt").string(), format_poses(map.poses), why) ||
       !core::write_tum_trajectory((staging / "trajectory.txt").string(), trajectory, why) ||
       !core::write_file((staging / "camera.txt").string(), camera, why) ||
+      (map.keyframes && !map.keyframes->empty() &&
+       !core::write_keyframe_file((staging / kKeyframeFile).string(), *map.keyframes, why)) ||
       !core::write_file((staging / kCompleteMarker).string(), "", why) || !core::sync_directory(staging.string(), why)) {
     // A full disk lands here ("No space left on device"): the previous version is untouched.
     fs::remove_all(staging, ec);
@@ -186,6 +190,14 @@ bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why) {
       p.T_world_camera.translation() = Eigen::Vector3d(v[2], v[3], v[4]);
       loaded.poses.push_back(p);
     }
+  }
+  if (fs::exists(folder / kKeyframeFile)) {
+    auto keyframes = std::make_shared<std::vector<core::DescribedKeyframe>>();
+    if (!core::read_keyframe_file((folder / kKeyframeFile).string(), keyframes.get(), why)) {
+      if (why) *why = "load map: " + *why;
+      return false;
+    }
+    loaded.keyframes = std::move(keyframes);
   }
   *map = std::move(loaded);
   return true;

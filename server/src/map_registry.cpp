@@ -54,9 +54,8 @@ std::shared_ptr<MapEntry> MapRegistry::open_streaming(
     return nullptr;
   }
   if (maps_.count(name) != 0) {
-    // Growing a finished or loaded map would need relocalising in it first: not supported.
-    core::fail(why, "map '" + name + "' exists; stream into a new map name (query "
-                    "this one with render requests)");
+    core::fail(why, "map '" + name + "' exists; stream into a new map name, or extend or localise "
+                    "in this one (session modes, docs/protocol.md)");
     return nullptr;
   }
   if (directory_ && !directory_->may_claim(name, true, why)) return nullptr;
@@ -69,6 +68,70 @@ std::shared_ptr<MapEntry> MapRegistry::open_streaming(
   maps_[name] = map;
   if (directory_) directory_->claim(name);
   return map;
+}
+
+std::shared_ptr<MapEntry> MapRegistry::open_extending(
+    const std::string& name,
+    const std::function<std::shared_ptr<core::SlamPipeline>(MapEntry& old, std::string* why)>& make_pipeline,
+    std::string* why) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = maps_.find(name);
+  if (it == maps_.end()) {
+    core::fail(why, "no map named '" + name + "' to extend (load it or stream it first)");
+    return nullptr;
+  }
+  MapEntry& old = *it->second;
+  auto map = std::make_shared<MapEntry>();
+  map->name = name;
+  {
+    std::lock_guard<std::mutex> mlock(old.mutex);
+    if (old.streaming || old.refining) {
+      core::fail(why, "map '" + name + "' has " + (old.streaming ? "a streaming session" : "a refinement running") +
+                          "; extend it once that is done (or localise in it)");
+      return nullptr;
+    }
+    map->camera = old.camera;
+    map->poses = old.poses;
+    map->pose_index = old.pose_index;
+    map->saved = old.saved;
+  }
+  map->pipeline = make_pipeline(old, why);
+  if (!map->pipeline) return nullptr;
+  map->streaming = true;
+  it->second = map;
+  return map;
+}
+
+bool MapRegistry::refine(MapEntry& map, std::uint32_t steps, std::string* why) {
+  const std::string what = "refine map '" + map.name + "': ";
+  if (steps == 0 || steps > config_.max_refine_steps) {
+    return core::fail(why, what + "steps must be 1 to " + std::to_string(config_.max_refine_steps) +
+                               " (server.max_refine_steps), not " + std::to_string(steps));
+  }
+  std::shared_ptr<core::SlamPipeline> pipeline;
+  {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    if (!map.pipeline) {
+      return core::fail(why, what + "it was loaded from disk, and refinement needs the keyframe images it was "
+                                    "mapped from, which are not saved; extend it or stream it in this server");
+    }
+    if (map.streaming) {
+      return core::fail(why, what + "it has a streaming session; refine when it closes (SESSION_CLOSE "
+                                    "refine_steps, fslam stream --refine)");
+    }
+    if (map.refining) return core::fail(why, what + "a refinement of it is running");
+    map.refining = true;
+    pipeline = map.pipeline;
+  }
+  std::string reason;
+  const bool ok = pipeline->refine(static_cast<int>(steps), &reason, nullptr, &stop_refining_);
+  {
+    std::lock_guard<std::mutex> lock(map.mutex);
+    map.refining = false;
+  }
+  if (!ok) return core::fail(why, what + reason);
+  log("refined map '" + map.name + "': " + std::to_string(steps) + " steps");
+  return true;
 }
 
 void MapRegistry::withdraw(const std::string& name) {
@@ -85,6 +148,7 @@ bool MapRegistry::load(const std::string& name, const std::string& folder, std::
   map->loaded.publish(stored.gaussians);
   map->camera = stored.camera;
   map->poses = std::move(stored.poses);
+  map->loaded_keyframes = std::move(stored.keyframes);
   for (std::size_t i = 0; i < map->poses.size(); ++i) map->pose_index[map->poses[i].frame_id] = i;
   map->saved = {map->loaded.version_number(), map->poses.size()};
   std::lock_guard<std::mutex> lock(mutex_);
@@ -110,8 +174,11 @@ bool MapRegistry::enough_disk_for(const StoredMap& stored, std::string* why) con
   std::error_code ec;
   const std::filesystem::space_info space = std::filesystem::space(config_.map_dir, ec);
   if (ec) return true;  // the save itself then says what is wrong with the folder
-  // map.ply, and poses.txt + trajectory.txt at under 200 bytes a line each (format_poses).
-  const std::uint64_t needed = core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() + 4096;
+  // map.ply, and poses.txt + trajectory.txt at under 200 bytes a line each (format_poses);
+  // keyframes.bin at ~25 KB a keyframe (500 ORB keypoints of 44 bytes, a 768-value thumbnail).
+  const std::uint64_t keyframes = stored.keyframes ? stored.keyframes->size() : 0;
+  const std::uint64_t needed =
+      core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() + 32768 * keyframes + 4096;
   const std::uint64_t reserve = static_cast<std::uint64_t>(config_.min_free_disk_mb) << 20;
   if (space.available >= needed + reserve) return true;
   const auto mib = [](std::uint64_t bytes) { return std::to_string((bytes + (1 << 20) - 1) >> 20); };
@@ -130,6 +197,7 @@ bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* wh
     stored.camera = map.camera;
     stored.poses = map.poses;
   }
+  stored.keyframes = map.keyframes();
   if (!enough_disk_for(stored, why)) return false;
   if (!save_map_folder(folder, stored, why)) return false;
   // Only a save to the map's own folder (the one a restart loads it from) counts as saved.

@@ -3,6 +3,7 @@
 // holds them (map_directory.hpp), and bounded by server.max_maps.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <map>
@@ -33,13 +34,23 @@ struct MapEntry {
   std::unordered_map<std::uint64_t, std::size_t> pose_index;  // frame id -> poses[]
   bool streaming = false;
   std::pair<std::uint64_t, std::size_t> saved{0, 0};  // (version, poses) last saved at home
+  bool refining = false;  // MapRegistry::refine runs on its pipeline
   // Held while clustering (apart from `mutex`, which tracking takes per frame), so that each
   // clustering carries its ids from the one before: ids form one chain over the versions.
   std::mutex instances_mutex;
   core::InstanceLabelCache instances;  // guarded by instances_mutex
   MapExporter exporter;                // versions that chunked exports read (map_export.hpp)
 
+  // A loaded map's keyframe descriptions (map_files.hpp keyframes.bin); null: none saved.
+  std::shared_ptr<const std::vector<core::DescribedKeyframe>> loaded_keyframes;
+
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
+  // The keyframes a session can relocalise against: those the streaming pipeline described so
+  // far, or the loaded ones (null or empty: none).
+  std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes() const {
+    if (!pipeline) return loaded_keyframes;
+    return std::make_shared<const std::vector<core::DescribedKeyframe>>(pipeline->described_keyframes());
+  }
 };
 
 class MapRegistry {
@@ -64,6 +75,24 @@ class MapRegistry {
       const std::string& name,
       const std::function<std::shared_ptr<core::SlamPipeline>(std::string* why)>& make_pipeline,
       std::string* why);
+  // A served map no session streams into, for a session that extends it: a new entry that takes
+  // over its poses, camera and save state, with the pipeline `make_pipeline` makes from the old
+  // one, and replaces it (queries and localise sessions that hold the old entry keep it; new
+  // queries see the map grow). Null with `why` when there is no such map or it streams.
+  std::shared_ptr<MapEntry> open_extending(
+      const std::string& name,
+      const std::function<std::shared_ptr<core::SlamPipeline>(MapEntry& old, std::string* why)>& make_pipeline,
+      std::string* why);
+  // Post-trajectory refinement of `map` (docs/protocol.md "Refinement"): `steps` steps of its
+  // pipeline's mapper over the keyframes it stored, then a new version. Needs a map streamed in
+  // this server (a loaded one has no keyframe images) with no streaming session and no other
+  // refinement running; steps within server.max_refine_steps. Stops early, saying so, once
+  // stop_refining() was called. False with `why` otherwise.
+  bool refine(MapEntry& map, std::uint32_t steps, std::string* why);
+  // Refinements running, and any asked for from now on, stop within a step (shutdown); and again
+  // allowed.
+  void stop_refining() { stop_refining_ = true; }
+  void allow_refining() { stop_refining_ = false; }
   // Stops serving `name` (queries in flight keep the version they hold; nothing is saved).
   void withdraw(const std::string& name);
 
@@ -90,6 +119,7 @@ class MapRegistry {
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, std::shared_ptr<MapEntry>> maps_;
   MapDirectoryMember* directory_ = nullptr;
+  std::atomic<bool> stop_refining_{false};
 };
 
 }  // namespace fslam::server

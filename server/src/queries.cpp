@@ -46,10 +46,13 @@ void Queries::stop() {
   wake_.notify_all();
   for (std::thread& t : threads_) t.join();
   threads_.clear();
+  if (refiner_.joinable()) refiner_.join();  // MapRegistry::stop_refining() ends it within a step
 }
 
 void Queries::accept(const fslam_proto_Request& msg) {
   auto query = std::make_unique<Query>(query_of(msg));
+  std::thread finished_refiner;
+  bool busy = false;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     auto key = std::make_pair(query->client, query->request_id);
@@ -79,13 +82,34 @@ void Queries::accept(const fslam_proto_Request& msg) {
                           " requests per second from this client (server.max_client_requests_per_s); slow down");
       return;
     }
-    if (queue_.size() < config_.query_queue_capacity) {
+    if (query->kind == fslam_proto_REQUEST_REFINE_MAP) {
+      // Refinement takes seconds to minutes: on a thread of its own, one at a time, so that
+      // renders and segmentations keep their query threads.
+      if (refining_) {
+        replies_.result(msg.client, msg.request_id, query->map_name,
+                        "server busy: a refinement is running (one at a time); try again when it is done");
+        return;
+      }
+      refining_ = true;
+      in_flight_.insert(std::move(key));
+      finished_refiner = std::move(refiner_);
+      refiner_ = std::thread([this, q = std::shared_ptr<Query>(std::move(query))] {
+        answer(*q);
+        std::lock_guard<std::mutex> done(mutex_);
+        refining_ = false;
+      });
+    } else if (queue_.size() < config_.query_queue_capacity) {
       in_flight_.insert(std::move(key));
       queue_.push_back(std::move(query));
       wake_.notify_one();
       return;
+    } else {
+      busy = true;
     }
   }
+  // A refiner that finished is joined here, outside the lock its last step takes.
+  if (finished_refiner.joinable()) finished_refiner.join();
+  if (!busy) return;
   counters_.add(&ServerStats::requests_failed);
   replies_.result(msg.client, msg.request_id, query->map_name,
                   "server busy: " + std::to_string(config_.query_queue_capacity) +
@@ -140,6 +164,10 @@ void Queries::answer(const Query& query) {
       else ok = resolve_map_folder(config_.map_dir, query.path, query.map_name, &folder, &why) &&
                 maps_.save(*map, folder, &why);
       break;
+    case fslam_proto_REQUEST_REFINE_MAP:
+      if (!map) why = "no map named '" + query.map_name + "'";
+      else ok = maps_.refine(*map, query.refine_steps, &why);
+      break;
     case fslam_proto_REQUEST_LOAD_MAP:
       ok = resolve_map_folder(config_.map_dir, query.path, query.map_name, &folder, &why) &&
            maps_.load(query.map_name, folder, &why);
@@ -148,7 +176,8 @@ void Queries::answer(const Query& query) {
     default:
       why = "unknown request kind " + std::to_string(static_cast<int>(query.kind));
   }
-  if (ok && (query.kind == fslam_proto_REQUEST_SAVE_MAP || query.kind == fslam_proto_REQUEST_LOAD_MAP)) {
+  if (ok && (query.kind == fslam_proto_REQUEST_SAVE_MAP || query.kind == fslam_proto_REQUEST_LOAD_MAP ||
+             query.kind == fslam_proto_REQUEST_REFINE_MAP)) {
     const std::shared_ptr<MapEntry> now = maps_.find(query.map_name);
     r.map_version = now->versions().version_number();
     r.map_gaussians = now->versions().latest()->size();
@@ -204,16 +233,9 @@ bool Queries::render(const Query& query, MapEntry& map, fslam_proto_Result* resu
   if (!resolve_view(req, map, &view, &T_world_camera, &reason)) return core::fail(why, "render: " + reason);
   const std::uint64_t version_number = map.versions().version_number();
   const core::MapVersions::Version version = map.versions().latest();
-  core::RenderSettings settings;
-  settings.features = false;
-  core::RenderResult rendered;
-  if (!rasterizer_.forward(*version, view, settings, &rendered, why)) return false;
-  std::vector<cv::Mat> mats;
-  for (ChannelImage& channel : render_channels(rendered, view.camera, req.channels, depth_scale)) {
-    mats.push_back(channel.image);
-  }
-  if (!attach_images(mats, result, images)) return core::fail(why, "render: cannot encode a result image");
-  describe_view(view, T_world_camera, result);
+  if (!render_to_wire(rasterizer_, *version, view, req.channels, depth_scale, &result->images, images, why))
+    return false;
+  describe_view(view, T_world_camera, &result->T_world_camera, &result->intrinsics);
   result->map_version = version_number;
   result->map_gaussians = version->size();
   return true;
@@ -264,10 +286,10 @@ bool Queries::segment(const Query& query, MapEntry& map, fslam_proto_Result* res
   settings.features = false;
   core::RenderResult rendered;
   if (!rasterizer_.forward(*version, out_view, settings, &rendered, why)) return false;
-  if (!attach_images({labels_image, colour_to_rgb8(rendered.colour)}, result, images)) {
+  if (!attach_images({labels_image, colour_to_rgb8(rendered.colour)}, &result->images, images)) {
     return core::fail(why, "segment: cannot encode a result image");
   }
-  describe_view(out_view, T_world_out, result);
+  describe_view(out_view, T_world_out, &result->T_world_camera, &result->intrinsics);
   result->map_version = version_number;
   result->map_gaussians = version->size();
   return true;

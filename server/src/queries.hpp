@@ -101,6 +101,8 @@ class Queries {
   std::deque<RequestKey> answered_order_;         // oldest first
   std::condition_variable wake_;
   bool stopping_ = false;
+  std::thread refiner_;    // REQUEST_REFINE_MAP, one at a time (joined by the next and by stop)
+  bool refining_ = false;  // refiner_ has not answered yet
 };
 
 }  // namespace fslam::server

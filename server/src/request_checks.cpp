@@ -19,6 +19,21 @@ bool check_render_channels(std::uint32_t channels, float requested_depth_scale, 
   return true;
 }
 
+bool check_view_request(bool localise, float rate_hz, std::uint32_t requested_channels, std::uint32_t* channels,
+                        std::string* why) {
+  *channels = 0;
+  if (rate_hz == 0.0f) return true;
+  if (!std::isfinite(rate_hz) || rate_hz < 0.0f)
+    return core::fail(why, "views: view_rate_hz must be a finite number of views per second >= 0");
+  if (!localise) return core::fail(why, "views are pushed to localise sessions only (mode SESSION_LOCALISE)");
+  *channels = requested_channels == 0 ? fslam_proto_CHANNEL_COLOUR | fslam_proto_CHANNEL_DEPTH : requested_channels;
+  float depth_scale = 0.0f;
+  std::string reason;
+  if (!check_render_channels(*channels, 0.0f, &depth_scale, &reason))
+    return core::fail(why, "views: channels must be a set of CHANNEL_* bits");
+  return true;
+}
+
 bool render_camera(const fslam_proto_Intrinsics& k, const core::PinholeCamera& map_camera,
                    const std::string& map_name, std::uint64_t max_pixels, core::PinholeCamera* camera,
                    std::string* why) {

@@ -45,8 +45,8 @@ bool ServerConfig::is_valid(std::string* why) const {
   if (query_queue_capacity == 0) return core::fail(why, "server: query_queue_capacity must be > 0");
   if (mapping_threads < 0) return core::fail(why, "server: mapping_threads must be >= 0");
   if (max_render_pixels == 0) return core::fail(why, "server: max_render_pixels must be > 0");
-  if (max_sessions == 0 || max_maps == 0 || max_prompts == 0) {
-    return core::fail(why, "server: max_sessions, max_maps and max_prompts must be > 0");
+  if (max_sessions == 0 || max_maps == 0 || max_prompts == 0 || max_refine_steps == 0) {
+    return core::fail(why, "server: max_sessions, max_maps, max_prompts and max_refine_steps must be > 0");
   }
   if (instance.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-") !=
       std::string::npos) {
@@ -111,6 +111,8 @@ bool Server::activate(std::string* why) {
     pose_writer_ = client::make_writer(participant_, poses_topic_, Delivery::reliable);
     result_writer_ = client::make_writer(participant_, results_topic_, Delivery::reliable);
     status_writer_ = client::make_writer(participant_, status_topic_, Delivery::best_effort);
+    views_topic_ = client::make_topic(participant_, &fslam_proto_View_desc, prefix, "views");
+    view_writer_ = client::make_writer(participant_, views_topic_, Delivery::newest);
     waitset_ = client::make_waitset(participant_, {&frame_reader_, &control_reader_, &request_reader_});
     // Scale-out: the instance's record and a claim per map it serves (map_directory.hpp).
     directory_ = std::make_unique<MapDirectoryMember>(
@@ -124,12 +126,13 @@ bool Server::activate(std::string* why) {
   const auto to_log = [this](const std::string& m) { log(m); };
   queries_.reset();  // those of an earlier activation hold the replies replaced here
   sessions_.reset();
-  replies_ = std::make_unique<Replies>(pose_writer_.get(), result_writer_.get());
-  sessions_ = std::make_unique<Sessions>(config_, *maps_, *replies_, *counters_, to_log);
+  replies_ = std::make_unique<Replies>(pose_writer_.get(), result_writer_.get(), view_writer_.get());
+  sessions_ = std::make_unique<Sessions>(config_, *maps_, *replies_, *counters_, *query_rasterizer_, to_log);
   sessions_->set_pose_listener(pose_listener_);
   queries_ = std::make_unique<Queries>(config_, *maps_, *replies_, *counters_, *query_rasterizer_,
                                        grounding_.get(), to_log);
   stop_ = false;
+  maps_->allow_refining();
   ingest_thread_ = std::thread([this] { ingest(); });
   queries_->start();
   if (!config_.health_file.empty()) health_ = std::make_unique<HealthFile>(config_.health_file);
@@ -143,6 +146,7 @@ void Server::deactivate() {
     ingest_thread_.join();
   }
   health_.reset();  // not ready while draining
+  if (maps_) maps_->stop_refining();  // a refinement running ends within a step, saying so
   if (maps_) maps_->set_directory(nullptr);
   directory_.reset();  // claims withdrawn: this instance stops serving
   if (queries_) queries_->stop();  // the queued requests are still answered
@@ -160,6 +164,7 @@ void Server::cleanup() {
   pose_writer_.reset();
   result_writer_.reset();
   status_writer_.reset();
+  view_writer_.reset();
   participant_.reset();
 }
 
@@ -216,6 +221,7 @@ void Server::publish_status() {
     st.last_drop_reason = report.last_drop_reason.data();
     st.last_skip_reason = report.last_skip_reason.data();
     st.frame_policy = report.frame_policy.data();
+    st.mode = report.mode.data();
     describe_map(*report.map, &st);
     dds_write(status_writer_.get(), &st);
   }
@@ -227,6 +233,7 @@ void Server::publish_status() {
     st.last_drop_reason = empty.data();
     st.last_skip_reason = empty.data();
     st.frame_policy = empty.data();
+    st.mode = empty.data();
     describe_map(*map, &st);
     dds_write(status_writer_.get(), &st);
   }

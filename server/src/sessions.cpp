@@ -5,9 +5,11 @@
 
 #include <tbb/task_arena.h>
 
+#include "fslam/core/error.hpp"
 #include "fslam/core/eval/percentile.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/map_files.hpp"
+#include "fslam/server/request_checks.hpp"
 #include "counters.hpp"
 #include "map_registry.hpp"
 #include "fslam/server/rate_limit.hpp"
@@ -46,10 +48,15 @@ struct Sessions::PreparedFrame {
   double decode_ms = 0, queue_ms = 0, prepare_ms = 0;
 };
 
-// One streaming session: its waiting frames and its two threads; the pipeline is its map's.
+// One streaming session: its waiting frames and its threads. The pipeline is its map's (mode
+// map), or its own tracking-only one fixed on the map (mode localise: nothing reaches the map).
 struct Sessions::Session {
   std::string name;
   std::shared_ptr<MapEntry> map;
+  std::shared_ptr<core::SlamPipeline> pipeline;
+  fslam_proto_SessionMode mode = fslam_proto_SESSION_MAP;
+  bool localise = false;              // mode localise: the pipeline is the session's, not the map's
+  std::unique_ptr<ViewStream> views;  // localise with views asked for: renders at its poses
   bool live = true;  // frame policy: live (newest frame only) or queue
   std::mutex mutex;
   std::condition_variable wake;
@@ -73,8 +80,13 @@ struct Sessions::Session {
 };
 
 Sessions::Sessions(const ServerConfig& config, MapRegistry& maps, const Replies& replies,
-                   Counters& counters, Log log)
-    : config_(config), maps_(maps), replies_(replies), counters_(counters), log_(std::move(log)) {}
+                   Counters& counters, const core::Rasterizer& view_rasterizer, Log log)
+    : config_(config),
+      maps_(maps),
+      replies_(replies),
+      counters_(counters),
+      view_rasterizer_(view_rasterizer),
+      log_(std::move(log)) {}
 
 Sessions::~Sessions() { close_all(); }
 
@@ -103,12 +115,20 @@ void Sessions::handle_control(const fslam_proto_SessionControl& msg) {
     if (it == sessions_.end()) {
       return replies_.result(msg.session, msg.request_id, map_name, "unknown session '" + name + "'");
     }
+    if (msg.refine_steps > 0 && (it->second->localise || msg.refine_steps > config_.max_refine_steps)) {
+      // Refused before anything closes: the client may close again without it.
+      return replies_.result(msg.session, msg.request_id, map_name,
+                             it->second->localise ? "close: a localise session has no map of its own to refine"
+                                                  : "close: refine_steps must be at most " +
+                                                        std::to_string(config_.max_refine_steps) +
+                                                        " (server.max_refine_steps)");
+    }
     closing = std::move(it->second);
     sessions_.erase(it);
   }
-  // Draining a session (its queued frames, then mapping) can take a while: do it off the
-  // ingest thread so that other sessions keep flowing, and answer when it is done.
-  close_later(std::move(closing), text(msg.session), msg.request_id);
+  // Draining a session (its queued frames, then mapping, then any refinement) can take a while:
+  // do it off the ingest thread so that other sessions keep flowing, and answer when it is done.
+  close_later(std::move(closing), text(msg.session), msg.request_id, "", msg.refine_steps);
 }
 
 void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::string& name,
@@ -129,12 +149,30 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
       return reply("the server streams its limit of " + std::to_string(config_.max_sessions) +
                    " sessions (server.max_sessions); close one first");
     }
-    std::shared_ptr<MapEntry> map = maps_.open_streaming(
-        map_name, [this](std::string* pipeline_why) { return make_pipeline(pipeline_why); }, &why);
-    if (!map) return reply(why);
     auto s = std::make_unique<Session>();
     s->name = name;
-    s->map = map;
+    s->mode = msg.mode;
+    s->localise = msg.mode == fslam_proto_SESSION_LOCALISE;
+    std::uint32_t view_channels = 0;
+    if (!check_view_request(s->localise, msg.view_rate_hz, msg.view_channels, &view_channels, &why)) return reply(why);
+    if (s->localise) {
+      s->pipeline = make_localiser(map_name, &s->map, &why);
+    } else if (msg.mode == fslam_proto_SESSION_MAP) {
+      s->map = maps_.open_streaming(
+          map_name, [this](std::string* pipeline_why) { return make_pipeline(pipeline_why); }, &why);
+      if (s->map) s->pipeline = s->map->pipeline;
+    } else if (msg.mode == fslam_proto_SESSION_EXTEND) {
+      s->map = maps_.open_extending(
+          map_name, [this](MapEntry& old, std::string* pipeline_why) { return make_extender(old, pipeline_why); }, &why);
+      if (s->map) s->pipeline = s->map->pipeline;
+    } else {
+      why = "unknown session mode " + std::to_string(static_cast<int>(msg.mode)) + " (map, localise or extend)";
+    }
+    if (!s->pipeline) return reply(why);
+    if (msg.view_rate_hz > 0.0f) {
+      s->views = std::make_unique<ViewStream>(name, s->map, view_rasterizer_, replies_, msg.view_rate_hz,
+                                              view_channels, log_);
+    }
     s->live = msg.policy == fslam_proto_POLICY_LIVE ||
               (msg.policy != fslam_proto_POLICY_QUEUE && config_.frame_policy == "live");
     s->frame_rate = RateLimit(config_.max_session_fps);
@@ -142,6 +180,59 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
     sessions_[name] = std::move(s);
   }
   reply("");
+}
+
+bool Sessions::startable(MapEntry& map, const std::string& verb, core::MapVersions::Version* version,
+                         std::shared_ptr<const std::vector<core::DescribedKeyframe>>* keyframes,
+                         std::string* why) const {
+  *version = map.versions().latest();
+  if (!*version || (*version)->size() == 0)
+    return core::fail(why, "map '" + map.name + "' has no Gaussians yet to " + verb);
+  *keyframes = map.keyframes();
+  if (!*keyframes || (*keyframes)->empty()) {
+    return core::fail(why, "map '" + map.name + "' has no keyframe descriptions to relocalise against (saved "
+                           "without keyframes.bin, or built with tracker.relocalisation.enabled false)");
+  }
+  return true;
+}
+
+std::shared_ptr<core::SlamPipeline> Sessions::make_localiser(const std::string& map_name,
+                                                             std::shared_ptr<MapEntry>* map,
+                                                             std::string* why) const {
+  *map = maps_.find(map_name);
+  if (!*map) {
+    core::fail(why, "no map named '" + map_name + "' to localise in (load it or stream it first)");
+    return nullptr;
+  }
+  core::MapVersions::Version version;
+  std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes;
+  if (!startable(**map, "localise against", &version, &keyframes, why)) return nullptr;
+  // Tracking alone, geometry and opacity: no encoder, no mapper, no feature term (docs/protocol.md).
+  core::PipelineConfig config = config_.pipeline;
+  config.mapping = false;
+  config.features = {};
+  config.tracker.relocalisation.enabled = true;
+  auto pipeline = std::make_shared<core::SlamPipeline>(config, nullptr);
+  if (!pipeline->start_in(*version, 0, *keyframes, core::StartMode::localise, why)) return nullptr;
+  return pipeline;
+}
+
+std::shared_ptr<core::SlamPipeline> Sessions::make_extender(MapEntry& map, std::string* why) const {
+  if (!config_.pipeline.tracker.relocalisation.enabled) {
+    core::fail(why, "extend: this server runs with tracker.relocalisation.enabled false");
+    return nullptr;
+  }
+  core::MapVersions::Version version;
+  std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes;
+  if (!startable(map, "extend", &version, &keyframes, why)) return nullptr;
+  std::shared_ptr<core::SlamPipeline> pipeline = make_pipeline(why);
+  std::string reason;
+  if (pipeline && !pipeline->start_in(*version, map.versions().version_number(), *keyframes,
+                                      core::StartMode::extend, &reason)) {
+    core::fail(why, "extend map '" + map.name + "': " + reason);
+    return nullptr;
+  }
+  return pipeline;
 }
 
 std::shared_ptr<core::SlamPipeline> Sessions::make_pipeline(std::string* why) const {
@@ -161,15 +252,16 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_pipeline(std::string* why) co
 void Sessions::start_threads(Session* raw) {
   // Before the open is answered, so that a live session's first frames are not skipped while the
   // tracking encoder is made (its first frame is the map's origin).
-  raw->map->pipeline->warm_up();
+  raw->pipeline->warm_up();
   if (config_.pipelined_tracking) {
     raw->preparing = std::thread([this, raw] { run_on_one_thread([&] { prepare_frames(raw); }); });
     raw->tracking = std::thread([this, raw] { run_on_one_thread([&] { track_frames(raw); }); });
   } else {
     raw->tracking = std::thread([this, raw] { run_on_one_thread([&] { prepare_and_track_frames(raw); }); });
   }
+  if (raw->localise) return;  // nothing to map
   raw->mapping = std::make_unique<MappingThread>(
-      raw->map->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
+      raw->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
       [this, raw](const core::KeyframeReport& report) {
         const core::RefinementStats& r = report.refinement;
         std::lock_guard<std::mutex> lock(raw->mutex);
@@ -189,10 +281,15 @@ void Sessions::start_threads(Session* raw) {
 }
 
 void Sessions::close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id,
-                           std::string answer) {
+                           std::string answer, std::uint32_t refine_steps) {
   const std::string map = session->map->name;
-  start_closer([this, owned = std::shared_ptr<Session>(std::move(session)), client, map, request_id, answer] {
+  start_closer([this, owned = std::shared_ptr<Session>(std::move(session)), client, map, request_id, answer,
+                refine_steps]() mutable {
     finish_session(owned.get());
+    // Post-trajectory refinement at close (paper): the session is closed either way.
+    std::string why;
+    if (refine_steps > 0 && answer.empty() && !maps_.refine(*owned->map, refine_steps, &why))
+      answer = "session '" + owned->name + "' closed; " + why;
     replies_.result(client.c_str(), request_id, map, answer);
   });
 }
@@ -246,23 +343,26 @@ void Sessions::close_idle(double lease_s) {
 }
 
 void Sessions::withdraw_map(const std::string& name, const std::string& reason) {
-  std::unique_ptr<Session> closing;
+  std::vector<std::unique_ptr<Session>> closing;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
-      if (it->second->map->name != name) continue;
-      closing = std::move(it->second);
-      sessions_.erase(it);
-      break;
+    for (auto it = sessions_.begin(); it != sessions_.end();) {
+      if (it->second->map->name != name) {
+        ++it;
+        continue;
+      }
+      closing.push_back(std::move(it->second));
+      it = sessions_.erase(it);
     }
     maps_.withdraw(name);  // queries in flight keep the version they hold; nothing is saved
   }
   if (log_) log_("gave up map '" + name + "': it " + reason);
-  if (!closing) return;
-  std::string session = closing->name;
-  replies_.result(session.c_str(), 0, name, "map '" + name + "' " + reason + "; session '" +
-                                                session + "' is closed here");
-  start_closer([this, owned = std::shared_ptr<Session>(std::move(closing))] { finish_session(owned.get()); });
+  for (auto& s : closing) {
+    const std::string session = s->name;
+    replies_.result(session.c_str(), 0, name, "map '" + name + "' " + reason + "; session '" +
+                                                  session + "' is closed here");
+    start_closer([this, owned = std::shared_ptr<Session>(std::move(s))] { finish_session(owned.get()); });
+  }
 }
 
 void Sessions::finish_session(Session* s) {
@@ -273,8 +373,10 @@ void Sessions::finish_session(Session* s) {
   s->wake.notify_all();
   if (s->preparing.joinable()) s->preparing.join();
   if (s->tracking.joinable()) s->tracking.join();  // every accepted frame is tracked
-  s->map->pipeline->finish();
+  s->views.reset();  // the last view offered is sent
+  s->pipeline->finish();
   if (s->mapping) s->mapping->join();
+  if (s->localise) return;  // the map was never the session's
   std::lock_guard<std::mutex> lock(s->map->mutex);
   s->map->streaming = false;
 }
@@ -303,6 +405,9 @@ std::vector<SessionReport> Sessions::reports() const {
     r.map_name = s->map->name;
     r.map = s->map;
     r.frame_policy = s->live ? "live" : "queue";
+    r.mode = s->mode == fslam_proto_SESSION_LOCALISE ? "localise"
+             : s->mode == fslam_proto_SESSION_EXTEND ? "extend"
+                                                     : "map";
     fslam_proto_SessionStatus& st = r.numbers;
     std::lock_guard<std::mutex> qlock(s->mutex);
     st.queue_depth = static_cast<std::uint32_t>(s->queue.size());
@@ -323,8 +428,8 @@ std::vector<SessionReport> Sessions::reports() const {
     st.track_ms_p99 = p(s->track_ms, 0.99);
     st.map_ms_p50 = p(s->map_ms, 0.5);
     st.map_ms_p99 = p(s->map_ms, 0.99);
-    st.mapping_queue = static_cast<std::uint32_t>(s->map->pipeline->queued_keyframes());
-    st.keyframes_left_out = s->map->pipeline->keyframes_left_out();
+    st.mapping_queue = static_cast<std::uint32_t>(s->pipeline->queued_keyframes());
+    st.keyframes_left_out = s->pipeline->keyframes_left_out();
     reports.push_back(std::move(r));
   }
   return reports;
@@ -413,7 +518,7 @@ bool Sessions::prepare_one(Session* s, QueuedFrame&& queued, PreparedFrame* prep
   const bool decoded = decode_frame(queued.frame, &frame, &why);
   prepared->decode_ms = ms_since(t_decode);
   const Clock::time_point t_prepare = Clock::now();
-  const bool ready = decoded && s->map->pipeline->prepare_frame(std::move(frame), &prepared->frame, &why);
+  const bool ready = decoded && s->pipeline->prepare_frame(std::move(frame), &prepared->frame, &why);
   prepared->prepare_ms = ms_since(t_prepare);
   prepared->ready = Clock::now();
   if (ready) return true;
@@ -493,7 +598,7 @@ void Sessions::track_frames(Session* s) {
 }
 
 void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
-  core::SlamPipeline& pipeline = *s->map->pipeline;
+  core::SlamPipeline& pipeline = *s->pipeline;
   const double queue_ms = prepared.queue_ms + ms_since(prepared.ready);
   const core::RgbdFrame& frame = prepared.frame.frame;
   const std::uint64_t frame_id = static_cast<std::uint64_t>(frame.id);
@@ -515,7 +620,7 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
     replies_.result(s->name.c_str(), frame_id, s->map->name, why);
     return;
   }
-  {
+  if (!s->localise) {  // a localising session's poses are its client's, not the map's
     std::lock_guard<std::mutex> lock(s->map->mutex);
     MapEntry& map = *s->map;
     map.camera = camera;
@@ -524,6 +629,8 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
   }
   replies_.pose(s->name, frame_id, timestamp, result, prepared.decode_ms, queue_ms, track_ms);
   counters_.add(&ServerStats::poses_published);
+  if (s->views && (result.state == core::TrackingState::ok || result.state == core::TrackingState::recovered))
+    s->views->offer(frame_id, timestamp, result.T_world_camera, camera);
   std::lock_guard<std::mutex> lock(listener_mutex_);
   if (pose_listener_) pose_listener_({s->name, frame_id, result.T_world_camera, result.keyframe});
 }

@@ -23,6 +23,7 @@
 #include "fslam/server/mapping_thread.hpp"
 #include "fslam/server/server.hpp"
 #include "fslam/server/wire.hpp"
+#include "view_stream.hpp"
 
 namespace fslam::server {
 
@@ -34,7 +35,7 @@ class Counters;
 // the fields below fill (they stay valid while the report lives).
 struct SessionReport {
   fslam_proto_SessionStatus numbers{};
-  std::string session, map_name, frame_policy, last_drop_reason, last_skip_reason;
+  std::string session, map_name, frame_policy, mode, last_drop_reason, last_skip_reason;
   std::shared_ptr<MapEntry> map;
 };
 
@@ -42,16 +43,18 @@ class Sessions {
  public:
   using Log = std::function<void(const std::string&)>;
   // All references must outlive the sessions.
+  // `view_rasterizer` renders the views of localise sessions that ask for them.
   Sessions(const ServerConfig& config, MapRegistry& maps, const Replies& replies, Counters& counters,
-           Log log);
+           const core::Rasterizer& view_rasterizer, Log log);
   ~Sessions();
 
-  // A fslam/session sample: open (a new map), close (drain, then answer), or attach only.
+  // A fslam/session sample: open (a new map, localising in a served one, or extending one), close
+  // (drain, then answer), or attach only.
   void handle_control(const fslam_proto_SessionControl& msg);
   // A fslam/frames sample: checked, then queued by its session's policy (or refused with a result).
   void handle_frame(const fslam_proto_Frame& msg);
   // Scale-out (map_directory.hpp): stops serving a map another instance holds by the claim
-  // rule; its streaming session, if any, is closed with an error result saying why.
+  // rule; its sessions (streaming and localising) are closed with an error result saying why.
   void withdraw_map(const std::string& name, const std::string& reason);
   // Closes, as a SESSION_CLOSE would, every session that received no frame for `lease_s`
   // seconds (server.session_lease_s: its client died or stopped streaming); maps stay served.
@@ -79,10 +82,23 @@ class Sessions {
 
   void open_session(const fslam_proto_SessionControl& msg, const std::string& name,
                     const std::string& map_name);
+  // SESSION_LOCALISE: a tracking-only pipeline fixed on the newest version of a served map and
+  // its keyframe descriptions; null with `why` when the map cannot be localised in.
+  std::shared_ptr<core::SlamPipeline> make_localiser(const std::string& map_name, std::shared_ptr<MapEntry>* map,
+                                                     std::string* why) const;
+  // SESSION_EXTEND: a streaming pipeline whose mapper continues `map`'s newest version (and its
+  // version numbers) and whose tracker relocalises its first frame against the map's keyframes.
+  std::shared_ptr<core::SlamPipeline> make_extender(MapEntry& map, std::string* why) const;
+  // What a session started in `map` needs: Gaussians and keyframe descriptions; `verb` says what
+  // for in the error.
+  bool startable(MapEntry& map, const std::string& verb, core::MapVersions::Version* version,
+                 std::shared_ptr<const std::vector<core::DescribedKeyframe>>* keyframes, std::string* why) const;
   std::shared_ptr<core::SlamPipeline> make_pipeline(std::string* why) const;
   void start_threads(Session* session);
+  // Drains `session` on a closer thread, refines its map `refine_steps` steps (0: not), then
+  // answers (client, request_id) with `answer` (empty: OK) or the refinement's error.
   void close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id,
-                   std::string answer = "");
+                   std::string answer = "", std::uint32_t refine_steps = 0);
   // Starts `work` on a closer thread; joins the closers that have finished (so that sessions
   // opened and closed without end do not pile up threads).
   void start_closer(std::function<void()> work);
@@ -109,6 +125,7 @@ class Sessions {
   MapRegistry& maps_;
   const Replies& replies_;
   Counters& counters_;
+  const core::Rasterizer& view_rasterizer_;
   Log log_;
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, std::unique_ptr<Session>> sessions_;

@@ -249,6 +249,7 @@ Query query_of(const fslam_proto_Request& msg) {
     query.output_view = seg.output_view;
   }
   if (msg.kind == fslam_proto_REQUEST_MAP_GAUSSIANS) query.export_request = export_request_of(msg);
+  if (msg.kind == fslam_proto_REQUEST_REFINE_MAP) query.refine_steps = msg.refine_steps;
   return query;
 }
 
@@ -290,7 +291,7 @@ bool encode_png(const cv::Mat& image, std::vector<std::uint8_t>* bytes) {
   return cv::imencode(".png", file_order, *bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
 }
 
-bool attach_images(const std::vector<cv::Mat>& mats, fslam_proto_Result* result, ResultImages* out) {
+bool attach_images(const std::vector<cv::Mat>& mats, dds_sequence_fslam_proto_Image* sequence, ResultImages* out) {
   std::vector<std::vector<std::uint8_t>>& buffers = out->buffers;
   std::vector<fslam_proto_Image>& images = out->images;
   buffers.resize(mats.size());
@@ -306,15 +307,15 @@ bool attach_images(const std::vector<cv::Mat>& mats, fslam_proto_Result* result,
                  {static_cast<std::uint32_t>(buffers[i].size()),
                   static_cast<std::uint32_t>(buffers[i].size()), buffers[i].data(), false}};
   }
-  result->images = {static_cast<std::uint32_t>(images.size()),
-                    static_cast<std::uint32_t>(images.size()), images.data(), false};
+  *sequence = {static_cast<std::uint32_t>(images.size()), static_cast<std::uint32_t>(images.size()),
+               images.data(), false};
   return true;
 }
 
 void describe_view(const core::RenderView& view, const Eigen::Isometry3d& T_world_camera,
-                   fslam_proto_Result* result) {
-  to_wire(T_world_camera, &result->T_world_camera);
-  result->intrinsics = {static_cast<float>(view.camera.fx), static_cast<float>(view.camera.fy),
+                   fslam_proto_Pose* pose, fslam_proto_Intrinsics* intrinsics) {
+  to_wire(T_world_camera, pose);
+  *intrinsics = {static_cast<float>(view.camera.fx), static_cast<float>(view.camera.fy),
                         static_cast<float>(view.camera.cx), static_cast<float>(view.camera.cy),
                         static_cast<std::uint32_t>(view.camera.width),
                         static_cast<std::uint32_t>(view.camera.height)};
@@ -333,7 +334,24 @@ void Replies::result(const char* client, std::uint64_t request_id, const std::st
   dds_write(result_writer_, &r);
 }
 
+bool render_to_wire(const core::Rasterizer& rasterizer, const core::GaussianMap& map,
+                    const core::RenderView& view, std::uint32_t channels, float depth_scale,
+                    dds_sequence_fslam_proto_Image* images, ResultImages* out, std::string* why) {
+  core::RenderSettings settings;
+  settings.features = false;
+  core::RenderResult rendered;
+  if (!rasterizer.forward(map, view, settings, &rendered, why)) return false;
+  std::vector<cv::Mat> mats;
+  for (ChannelImage& channel : render_channels(rendered, view.camera, channels, depth_scale)) {
+    mats.push_back(channel.image);
+  }
+  if (!attach_images(mats, images, out)) return core::fail(why, "render: cannot encode a result image");
+  return true;
+}
+
 void Replies::result(const fslam_proto_Result& result) const { dds_write(result_writer_, &result); }
+
+void Replies::view(const fslam_proto_View& view) const { dds_write(view_writer_, &view); }
 
 void Replies::pose(const std::string& session, std::uint64_t frame_id, double timestamp,
                    const core::TrackingResult& tracked, double decode_ms, double queue_ms,

@@ -1,7 +1,7 @@
 // Fuzz target: a request and a session control as a peer can publish them -> the checks made
 // before anything is rendered or written (server/include/fslam/server/request_checks.hpp, wire.hpp,
 // map_files.hpp): map and session names, save/load folders, poses, intrinsics and the pixel
-// limit, render channels, segment modes and prompts, Every refusal says why,
+// limit, render channels, a session's views, segment modes and prompts. Every refusal says why,
 // and what is accepted holds: folders stay under map_dir, a valid map name is a valid folder,
 // cameras are valid and within the limit, prompts lie in the view. Input layout: the fields in
 // the order read below (fuzz_support.hpp's little-endian reader), then three strings, each a
@@ -131,6 +131,17 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const bool channels_ok = check_render_channels(query.render.channels, query.render.depth_scale, &depth_scale, &why);
   refused_with_reason(channels_ok, why);
   if (channels_ok && !(std::isfinite(depth_scale) && depth_scale > 0.0f)) __builtin_trap();
+  // A session's views (session control), from fields already read: the render's depth scale as
+  // the rate, its channels, its from_frame as the localise mode.
+  std::uint32_t view_channels = 0;
+  why.clear();
+  const bool views_ok =
+      check_view_request(query.render.from_frame, query.render.depth_scale, query.render.channels, &view_channels, &why);
+  refused_with_reason(views_ok, why);
+  if (views_ok && query.render.depth_scale != 0.0f) {
+    float unused = 0.0f;
+    if (!query.render.from_frame || !check_render_channels(view_channels, 0.0f, &unused, &why)) __builtin_trap();
+  }
   fslam::core::PinholeCamera camera, out_camera;
   const bool view_ok = check_view(query.render, &camera);
   if (query.has_output_view) check_view(query.output_view, &out_camera);

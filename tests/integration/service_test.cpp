@@ -3,6 +3,8 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -18,11 +20,13 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "cli_runner.hpp"
 #include "fslam/client/client.hpp"
 #include "fslam/proto/types.h"
 #include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/server/backend_factory.hpp"
 
 namespace fslam {
@@ -703,6 +707,230 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   for (std::size_t i = 0; i < before.images.size(); ++i) {
     EXPECT_EQ(before.images[i].pixels, after.images[i].pixels) << "channel " << before.images[i].channel;
   }
+}
+
+// Issue 20 (a), (b) and (c): a map streamed from every 2nd of the first 100 frames of a
+// synthetic room is saved and the server restarted. Clients localise in it with frames it never
+// streamed: poses within 3 cm of ground truth (the map's world is the ground truth's), views and
+// renders at those poses that match the frames' depth, two localise sessions and a querying
+// client at once, and the map unchanged by them. Then a session extends it with the rest of the
+// room: relocalised, mapped into it while a querier sees it grow, its versions going on; and a
+// last session localises in the part it added.
+TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("localise").string();
+  const std::string prefix = "loc" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 160 --seed 9", &out, &err), 0)
+      << err;
+  const std::string server_args = "--prefix " + prefix + " --map-dir " + dir + "/maps";
+  auto server = std::make_unique<test::ScopedServer>(server_args, dir + "/server1.log");
+  ASSERT_GT(server->pid(), 0);
+  ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "builder", "--map room --frames 0:100:2", &out), 0) << out;
+  {
+    // A session cannot localise in a map that is not served.
+    std::string stream_out;
+    EXPECT_NE(stream_sequence(dir + "/seq", prefix, "nowhere", "--mode localise --map absent --frames 1:5", &stream_out), 0);
+  }
+  server->stop();  // saves "room" with its keyframes on the way out
+  ASSERT_TRUE(std::filesystem::exists(dir + "/maps/room/keyframes.bin"));
+  server = std::make_unique<test::ScopedServer>(server_args, dir + "/server2.log");
+  ASSERT_GT(server->pid(), 0);
+
+  std::uint64_t gaussians_before = 0, version_before = 0;
+  {
+    client::Client c(options_for(prefix));
+    ASSERT_TRUE(c.attach_map("room", 20000, &why)) << why;
+    client::RenderQuery q;
+    q.map_name = "room";
+    q.from_frame = true;
+    q.frame_id = 0;
+    client::RenderOutput r;
+    ASSERT_TRUE(c.render(q, &r, 20000, &why)) << why;
+    gaussians_before = r.map_gaussians;
+    version_before = r.map_version;
+  }
+  // Two localise sessions on odd frames (never streamed) while a third client renders.
+  const auto localise = [&](const std::string& session, const std::string& frames) {
+    std::string o;
+    const int rc = stream_sequence(dir + "/seq", prefix, session,
+                                   "--mode localise --map room --frames " + frames + " --report " + dir +
+                                       "/" + session + ".json --out " + dir + "/" + session + ".tum",
+                                   &o);
+    return std::make_pair(rc, o);
+  };
+  // ar1 also asks for the map rendered at each localised pose (the AR overlay), as fast as it
+  // comes: views replace each other while one renders, so it gets some, not all.
+  auto first = std::async(std::launch::async, localise, "ar1",
+                          "1:100:4 --views 1000 --views-out " + dir + "/views1");
+  auto second = std::async(std::launch::async, localise, "ar2", "3:100:4");
+  std::atomic<bool> streaming{true};
+  std::atomic<int> renders{0};
+  auto querier = std::async(std::launch::async, [&] {
+    client::Client c(options_for(prefix));
+    client::RenderQuery q;
+    q.map_name = "room";
+    q.from_frame = true;
+    q.frame_id = 0;
+    std::string qwhy;
+    while (streaming) {
+      client::RenderOutput r;
+      if (c.render(q, &r, 20000, &qwhy)) ++renders;
+    }
+  });
+  const auto [rc1, out1] = first.get();
+  const auto [rc2, out2] = second.get();
+  streaming = false;
+  querier.get();
+  EXPECT_EQ(rc1, 0) << out1;
+  EXPECT_EQ(rc2, 0) << out2;
+  EXPECT_GT(renders.load(), 0) << "the querying client got no render while two sessions localised";
+  for (const std::string session : {"ar1", "ar2"}) {
+    const nlohmann::json report = stream_report(dir + "/" + session + ".json");
+    ASSERT_TRUE(report.contains("localisation")) << session << ": " << report.dump();
+    const nlohmann::json& l = report["localisation"];
+    EXPECT_EQ(l["compared"].get<int>(), 25) << session;
+    EXPECT_EQ(report["lost"].get<int>(), 0) << session;
+    EXPECT_LT(l["max_error_m"].get<double>(), 0.03) << session;
+    EXPECT_LT(l["median_error_m"].get<double>(), 0.01) << session;
+  }
+
+  core::DatasetOptions dopts;
+  auto dataset = core::open_dataset(dir + "/seq", dopts, &why);
+  ASSERT_TRUE(dataset) << why;
+  // Renders requested at ar1's localised poses show the frames' surfaces, unchanged maps.
+  core::Trajectory localised;
+  ASSERT_TRUE(core::read_tum_trajectory(dir + "/ar1.tum", &localised, &why)) << why;
+  ASSERT_FALSE(localised.empty());
+  client::Client c(options_for(prefix));
+  ASSERT_TRUE(c.attach_map("room", 20000, &why)) << why;
+  // The depth a request renders at ar1's localised pose of dataset frame `index` (false: the frame
+  // was not localised, or no render came).
+  const auto render_at_localised = [&](std::size_t index, core::RgbdFrame* frame, client::RenderOutput* r) {
+    std::string rwhy;
+    if (!dataset->load(index, frame, &rwhy)) return false;
+    const auto pose = std::find_if(localised.begin(), localised.end(), [&](const core::StampedPose& p) {
+      return std::abs(p.timestamp - frame->timestamp) < 1e-6;
+    });
+    if (pose == localised.end()) return false;
+    client::RenderQuery q;
+    q.map_name = "room";
+    const Eigen::Quaterniond rot(pose->T_world_camera.rotation());
+    for (int k = 0; k < 3; ++k) q.translation[k] = pose->T_world_camera.translation()[k];
+    q.rotation[0] = rot.x(), q.rotation[1] = rot.y(), q.rotation[2] = rot.z(), q.rotation[3] = rot.w();
+    q.channels = client::kDepth;
+    q.depth_scale = 1000.0f;
+    return c.render(q, r, 20000, &rwhy) && channel(*r, client::kDepth) != nullptr;
+  };
+  for (const std::size_t index : {std::size_t{1}, std::size_t{49}, std::size_t{97}}) {
+    core::RgbdFrame frame;
+    client::RenderOutput r;
+    ASSERT_TRUE(render_at_localised(index, &frame, &r)) << "frame " << index << " was not localised or rendered";
+    double coverage = 0;
+    EXPECT_LT(mean_depth_error(*channel(r, client::kDepth), 1000.0f, frame.depth, &coverage), 0.03) << "frame " << index;
+    EXPECT_GT(coverage, 0.8) << "frame " << index;
+    EXPECT_EQ(r.map_gaussians, gaussians_before) << "localising changed the map";
+  }
+  // The views pushed to ar1 are those renders: the map at its localised poses with its frames'
+  // camera (to within the pose's rounding in the trajectory file); ar2 asked for none.
+  EXPECT_GE(stream_report(dir + "/ar1.json")["views"].get<int>(), 1);
+  EXPECT_EQ(stream_report(dir + "/ar2.json")["views"].get<int>(), 0);
+  int views_checked = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir + "/views1")) {
+    const std::string name = entry.path().filename().string();
+    if (name.size() < 10 || name.compare(name.size() - 10, 10, "_depth.png") != 0) continue;
+    const std::size_t frame_id = std::stoul(name.substr(5, name.size() - 15));  // view_<id>_depth.png
+    EXPECT_EQ(frame_id % 4, 1u) << name << " is not a frame ar1 sent";
+    core::RgbdFrame frame;
+    client::RenderOutput r;
+    ASSERT_TRUE(render_at_localised(frame_id, &frame, &r)) << name;
+    const client::RenderedImage& rendered = *channel(r, client::kDepth);
+    const cv::Mat view = cv::imread(entry.path().string(), cv::IMREAD_UNCHANGED);
+    ASSERT_EQ(view.type(), CV_16UC1) << name;
+    ASSERT_EQ(view.cols, frame.depth.cols) << name << ": views use the frame's camera";
+    ASSERT_EQ(view.rows, static_cast<int>(rendered.height)) << name;
+    const cv::Mat requested(view.rows, view.cols, CV_16UC1, const_cast<std::uint8_t*>(rendered.pixels.data()));
+    cv::Mat diff;
+    cv::absdiff(view, requested, diff);
+    EXPECT_LT(cv::countNonZero(diff > 2), static_cast<int>(view.total() / 100))
+        << name << ": more than 1 % of the view's pixels differ by over 2 mm from a render at its pose";
+    EXPECT_TRUE(std::filesystem::exists(dir + "/views1/view_" + std::to_string(frame_id) + ".png")) << name;
+    ++views_checked;
+  }
+  EXPECT_GE(views_checked, 1) << "no view written to " << dir << "/views1";
+
+  {
+    // A loaded map cannot be refined: its keyframe images were not saved.
+    std::string refused_err;
+    EXPECT_NE(run_command(fslam_bin() + " refine-map --map room --steps 10 --prefix " + prefix, &out, &refused_err), 0);
+    EXPECT_NE(refused_err.find("loaded from disk"), std::string::npos) << refused_err;
+  }
+
+  // (b) Extend: frames 100-159 relocalise in the saved map and are mapped into it while a
+  // querier renders; the map grows and its versions go on from the loaded map's. The session
+  // closes with a refinement of 20 steps.
+  std::atomic<bool> extending{true};
+  std::atomic<std::uint64_t> seen_version{0}, seen_gaussians{0};
+  auto watcher = std::async(std::launch::async, [&] {
+    client::Client w(options_for(prefix));
+    client::RenderQuery q;
+    q.map_name = "room";
+    q.from_frame = true;
+    q.frame_id = 0;
+    q.channels = client::kOpacity;
+    std::string wwhy;
+    while (extending) {
+      client::RenderOutput r;
+      if (!w.render(q, &r, 20000, &wwhy)) continue;
+      seen_version = std::max<std::uint64_t>(seen_version, r.map_version);
+      seen_gaussians = std::max<std::uint64_t>(seen_gaussians, r.map_gaussians);
+    }
+  });
+  std::string ext_out;
+  const int ext_rc = stream_sequence(dir + "/seq", prefix, "extender",
+                                     "--mode extend --map room --frames 100:160:2 --refine 20 --report " + dir +
+                                         "/ext.json",
+                                     &ext_out);
+  extending = false;
+  watcher.get();
+  ASSERT_EQ(ext_rc, 0) << ext_out;
+  {
+    const nlohmann::json report = stream_report(dir + "/ext.json");
+    ASSERT_TRUE(report.contains("localisation")) << report.dump();
+    EXPECT_EQ(report["lost"].get<int>(), 0) << ext_out;
+    EXPECT_EQ(report["localisation"]["compared"].get<int>(), 30);
+    EXPECT_LT(report["localisation"]["max_error_m"].get<double>(), 0.03) << ext_out;
+  }
+  EXPECT_GT(seen_gaussians.load(), gaussians_before) << "the querier never saw the map grow";
+  EXPECT_GT(seen_version.load(), version_before) << "the extended map's versions go on from the loaded one's";
+  {
+    // Opening a map session on an existing map is refused with a pointer to the modes.
+    std::string refused;
+    EXPECT_NE(stream_sequence(dir + "/seq", prefix, "again", "--map room --frames 0:2", &refused), 0);
+    EXPECT_NE(refused.find("extend or localise"), std::string::npos) << refused;
+  }
+  // Refinement as a request, on the extended map (its session closed): a new version.
+  const auto version_now = [&] {
+    client::RenderQuery q;
+    q.map_name = "room";
+    q.from_frame = true;
+    q.frame_id = 0;
+    q.channels = client::kOpacity;
+    client::RenderOutput r;
+    return c.render(q, &r, 20000, &why) ? r.map_version : 0;
+  };
+  const std::uint64_t before_refine = version_now();
+  std::string refine_err;
+  EXPECT_EQ(run_command(fslam_bin() + " refine-map --map room --steps 10 --prefix " + prefix, &out, &refine_err), 0)
+      << refine_err;
+  EXPECT_GT(version_now(), before_refine) << "a refinement publishes a new version";
+  // (a) in the part the extension added: frames it never streamed localise there.
+  const auto [rc3, out3] = localise("ar3", "141:160:4");
+  ASSERT_EQ(rc3, 0) << out3;
+  const nlohmann::json report3 = stream_report(dir + "/ar3.json");
+  EXPECT_EQ(report3["lost"].get<int>(), 0) << out3;
+  EXPECT_EQ(report3["localisation"]["compared"].get<int>(), 5) << out3;
+  EXPECT_LT(report3["localisation"]["max_error_m"].get<double>(), 0.03) << out3;
 }
 
 // A load resent after its answer (the answer may have been lost) gets the remembered answer

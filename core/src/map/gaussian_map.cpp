@@ -132,4 +132,9 @@ void MapVersions::publish(Version map) {
   ++number_;
 }
 
+void MapVersions::continue_after(std::uint64_t number) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  number_ = number;
+}
+
 }  // namespace fslam::core

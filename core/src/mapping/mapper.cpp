@@ -596,11 +596,17 @@ bool Mapper::optimise(int iterations, std::string* why) {
   return true;
 }
 
-bool Mapper::refine(int steps, std::string* why, const std::function<void(int, int)>& progress) {
+bool Mapper::refine(int steps, std::string* why, const std::function<void(int, int)>& progress,
+                    const std::atomic<bool>* stop) {
   if (keyframes_.empty() || map_.empty()) return true;
   recompute_filter_3d(0);
   const GaussianLearningRates& lr = config_.learning_rates;
   for (int it = 0; it < steps; ++it) {
+    if (stop != nullptr && stop->load()) {
+      adam_.set_learning_rate(kAdamMeans, lr.means);
+      publish();
+      return fail(why, "refinement stopped after " + std::to_string(it) + " of " + std::to_string(steps) + " steps");
+    }
     // 3DGS's position schedule: log-linear decay to 1/100 of the rate over the refinement.
     const float t = steps > 1 ? static_cast<float>(it) / static_cast<float>(steps - 1) : 0.0f;
     adam_.set_learning_rate(kAdamMeans, lr.means * std::pow(0.01f, t));

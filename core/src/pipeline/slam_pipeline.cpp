@@ -135,7 +135,7 @@ bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::strin
 bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* result, std::string* why,
                                   const Eigen::Isometry3d* mapping_pose) {
   const RgbdFrame& frame = prepared.frame;
-  if (config_.tracker.target == TrackingTarget::gaussians) {
+  if (config_.tracker.target == TrackingTarget::gaussians && !tracker_.localising()) {
     // The newest map target, if the mapper built one since the last frame (never waited for).
     std::shared_ptr<const LocalMap> target;
     std::int64_t last_keyframe = -1;
@@ -157,6 +157,12 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
     return false;
   }
   result->timings.features_ms = prepared.features_ms;
+  const DescribedKeyframe* described = tracker_.relocaliser().newest();
+  if (result->keyframe && described != nullptr && described->id == frame.id) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    described_.push_back(*described);
+    while (described_.size() > config_.tracker.relocalisation.max_keyframes) described_.pop_front();
+  }
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
   if (result->keyframe && config_.mapping) {
     QueuedKeyframe queued;
@@ -190,6 +196,27 @@ bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
   PreparedFrame prepared;
   return prepare_frame(frame, &prepared, why) &&
          track_prepared(std::move(prepared), result, why, mapping_pose);
+}
+
+bool SlamPipeline::start_in(const GaussianMap& map, std::uint64_t version_number,
+                            std::vector<DescribedKeyframe> keyframes, StartMode mode, std::string* why) {
+  if (mode == StartMode::extend) {
+    mapper_.versions().continue_after(version_number);
+    if (!mapper_.set_map(map, why)) return false;
+    const auto n = static_cast<std::int64_t>(keyframes.size());
+    for (std::int64_t i = 0; i < n; ++i) keyframes[static_cast<std::size_t>(i)].id = i - n;
+    std::lock_guard<std::mutex> lock(mutex_);
+    described_.assign(keyframes.begin(), keyframes.end());
+    while (described_.size() > config_.tracker.relocalisation.max_keyframes) described_.pop_front();
+  }
+  const TrackerConfig& t = config_.tracker;
+  tracker_.start_in(localisation_target(map, t.local_map, t.map_target, t.preprocess), std::move(keyframes), mode);
+  return true;
+}
+
+std::vector<DescribedKeyframe> SlamPipeline::described_keyframes() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return {described_.begin(), described_.end()};
 }
 
 void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {

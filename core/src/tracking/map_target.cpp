@@ -88,4 +88,21 @@ GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& 
   return out;
 }
 
+namespace {
+constexpr float kUnbounded = 1.0e6f;  // metres: a radius no map reaches (finite, as LocalMap needs)
+}  // namespace
+
+LocalMap localisation_target(const GaussianMap& map, const LocalMapConfig& local_map,
+                             const MapTargetConfig& config, PreprocessConfig preprocess) {
+  LocalMapConfig fixed = local_map;
+  fixed.fuse = false;  // Gaussians are not observations to average
+  fixed.min_point_distance = std::min(config.min_point_distance, fixed.voxel_size);
+  fixed.radius = kUnbounded;
+  preprocess.depth_noise.enabled = false;
+  LocalMap target(fixed);
+  const Eigen::Vector3f origin = Eigen::Vector3f::Zero();
+  target.insert(map_target_points(map, origin, kUnbounded, config, preprocess), origin);
+  return target;
+}
+
 }  // namespace fslam::core

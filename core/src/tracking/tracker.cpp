@@ -74,7 +74,17 @@ const char* to_string(TrackingState state) {
 Tracker::Tracker(const TrackerConfig& config)
     : config_(config), map_(config.local_map), relocaliser_(config.relocalisation) {}
 
+void Tracker::start_in(LocalMap map, std::vector<DescribedKeyframe> keyframes, StartMode mode) {
+  reset();
+  map_ = std::move(map);
+  for (DescribedKeyframe& kf : keyframes) relocaliser_.add_keyframe(std::move(kf));
+  localising_ = mode == StartMode::localise;
+  relocalise_first_ = true;
+}
+
 void Tracker::reset() {
+  localising_ = false;
+  relocalise_first_ = false;
   map_.clear();
   unmapped_.clear();
   T_last_.reset();
@@ -182,6 +192,39 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
       keyframes_.pop_front();
   };
 
+  // Global relocalisation against every described keyframe, with no prior pose (the
+  // description the wide-baseline start may have made already is reused).
+  const auto relocalise_globally = [&] {
+    const double t_describe = now_ms();
+    const bool ok = describe();
+    const double describe_ms = now_ms() - t_describe;
+    result->relocalisation = ok ? relocalise(description, prepared) : RelocalisationAttempt{};
+    result->relocalisation->describe_ms = describe_ms;
+    if (!ok) result->relocalisation->message = "relocalisation failed: the frame has no ORB description";
+    return result->relocalisation->accepted;
+  };
+
+  // Started in an existing map without a pose yet: the frame finds itself in it, or is lost.
+  if (relocalise_first_ && !T_last_) {
+    if (relocalise_globally()) {
+      T_last_ = result->relocalisation->T_world_camera;
+      result->T_world_camera = *T_last_;
+      result->gicp = result->relocalisation->verification;
+      result->state = TrackingState::recovered;
+      result->message = result->relocalisation->message;
+      if (!localising_) {  // extend: the first keyframe of the session, in the map's world
+        add_keyframe(*T_last_);
+        result->keyframe = true;
+      }
+    } else {
+      result->state = TrackingState::lost;
+      result->message = "not localised yet: " + result->relocalisation->message;
+    }
+    result->timings.registration_ms = now_ms() - t1;
+    result->timings.total_ms = now_ms() - t0;
+    return true;
+  }
+
   // The first frame defines the world.
   if (!T_last_) {
     if (source.size() < config_.loss.min_inliers) {
@@ -211,7 +254,8 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   // 2b. Wide baseline (issue 20): a registration that keeps few points may have settled in
   //     another basin of the nearest-neighbour cost; ORB matches to the last keyframe (RANSAC)
   //     give a start that does not depend on the prediction.
-  if (config_.relocalisation.enabled && gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
+  if (config_.relocalisation.enabled && !keyframes_.empty() &&
+      gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
     Eigen::Isometry3d T_guess;
     std::size_t matched = 0;
     if (describe() && relocaliser_.pose_from_keyframe(description, keyframes_.back().frame_id, &T_guess, &matched)) {
@@ -245,14 +289,7 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     }
     // Then global relocalisation against every described keyframe, with no prior pose.
     if (!recovered && config_.relocalisation.enabled && relocaliser_.size() > 0) {
-      // The description the wide-baseline start may have made already is reused.
-      const double t_describe = now_ms();
-      const bool ok = describe();
-      const double describe_ms = now_ms() - t_describe;
-      result->relocalisation = ok ? relocalise(description, prepared) : RelocalisationAttempt{};
-      result->relocalisation->describe_ms = describe_ms;
-      if (!ok) result->relocalisation->message = "relocalisation failed: the frame has no ORB description";
-      if (result->relocalisation->accepted) {
+      if (relocalise_globally()) {
         gicp = result->relocalisation->verification;
         recovered = true;
         result->state = TrackingState::recovered;
@@ -280,8 +317,9 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   result->T_world_camera = T_world_camera;
   result->gicp = gicp;
 
-  // 4. Keyframe decision (eq. keyframe_crit); only keyframes grow the local map.
-  if (is_keyframe(T_world_camera, gicp)) {
+  // 4. Keyframe decision (eq. keyframe_crit); only keyframes grow the local map (a localising
+  //    tracker's map is fixed).
+  if (!localising_ && is_keyframe(T_world_camera, gicp)) {
     add_keyframe(T_world_camera);
     result->keyframe = true;
   }

@@ -142,7 +142,7 @@ TEST(Wire, ResultImagesArePngsThatPointIntoTheirBuffers) {
   mask.at<std::uint8_t>(2, 3) = 255;
   fslam_proto_Result result{};
   ResultImages images;
-  ASSERT_TRUE(attach_images({mask, depth}, &result, &images));
+  ASSERT_TRUE(attach_images({mask, depth}, &result.images, &images));
   ASSERT_EQ(result.images._length, 2u);
   ASSERT_EQ(result.images._buffer, images.images.data());
   const fslam_proto_Image& wire_depth = result.images._buffer[1];

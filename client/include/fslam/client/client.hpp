@@ -62,8 +62,21 @@ struct PoseUpdate {
 // or queue (track every frame from a bounded queue; overflow drops with an error).
 enum class FramePolicy { server_default, live, queue };
 
+// What a session does with its map (docs/protocol.md "Session modes"): build a new one, localise
+// in a served one without changing it (the server relocalises the first frame and any lost one
+// against the map's keyframes), or extend a served one (relocalise, then keep mapping into it).
+enum class SessionMode { map, localise, extend };
+
+// Channels of a render (the proto's CHANNEL_* bits).
+enum RenderChannel : std::uint32_t { kColour = 1, kDepth = 2, kNormals = 4, kOpacity = 8 };
+
 struct SessionOptions {
   FramePolicy policy = FramePolicy::server_default;
+  SessionMode mode = SessionMode::map;
+  // localise: the server pushes the map rendered at each localised pose (on_view), at most this
+  // many per second (0: none), of these channels, with the frame's camera.
+  double view_rate_hz = 0.0;
+  std::uint32_t view_channels = kColour | kDepth;
 };
 
 // A server's answer to a request or session control, or its report of a rejected or dropped
@@ -82,6 +95,7 @@ struct StatusUpdate {
   std::uint32_t queue_depth = 0;
   std::uint64_t frames_received = 0, frames_processed = 0, frames_dropped = 0, frames_skipped = 0;
   std::string last_skip_reason, frame_policy;  // frame_policy: "live" or "queue"
+  std::string mode;                            // "map", "localise" or "extend"; "" for a map report
   float queue_ms_p50 = 0, queue_ms_p99 = 0;    // per frame: accepted -> tracking starts
   std::uint64_t map_gaussians = 0, resident_bytes = 0;
   std::uint32_t mapping_queue = 0;       // keyframes waiting for the mapper
@@ -93,9 +107,6 @@ struct StatusUpdate {
   std::uint64_t map_version = 0, frames_tracked = 0;
   bool text_queries = false;            // the server answers text prompts (grounding model)
 };
-
-// Channels of a render (the proto's CHANNEL_* bits).
-enum RenderChannel : std::uint32_t { kColour = 1, kDepth = 2, kNormals = 4, kOpacity = 8 };
 
 // Where a query looks at a map from: a pose, or the tracked pose of a frame; and a camera.
 struct CameraView {
@@ -126,6 +137,15 @@ struct RenderOutput {
   double translation[3] = {0, 0, 0}, rotation[4] = {0, 0, 0, 1};  // the pose rendered from
   CameraIntrinsics intrinsics;                                     // and the camera
   std::uint64_t map_version = 0, map_gaussians = 0;
+};
+
+// A render the server pushed at a localise session's localised pose (SessionOptions views).
+struct ViewUpdate {
+  std::string session, map_name;
+  std::uint64_t frame_id = 0;  // the frame localised at this pose
+  double timestamp = 0.0;      // that frame's
+  RenderOutput render;         // the session's view channels, the pose and the frame's camera
+  std::string error;           // non-empty: an image could not be decoded (render then partial)
 };
 
 // Segmentation queries (docs/segmentation.md).
@@ -200,11 +220,15 @@ class Client {
   // bad input (no session, zero or non-finite intrinsics, missing images, a lossy depth
   // encoding, an encoder failure), or when DDS Security does not let this client write frames.
   bool push_frame(const std::string& session, const FrameInput& frame, std::string* why);
-  // Opens (creates or attaches to `map_name`) or closes a streaming session and waits up to
-  // timeout_ms for the server's answer. False with `why` on an error result or no answer.
+  // Opens a streaming session on `map_name` (a new map, or options.mode localise or extend in a
+  // served one) or closes it, and waits up to timeout_ms for the server's answer. False with `why` on
+  // an error result or no answer.
   bool open_session(const std::string& session, const std::string& map_name, int timeout_ms,
                     std::string* why, const SessionOptions& options = {});
-  bool close_session(const std::string& session, int timeout_ms, std::string* why);
+  // Closing waits for the server to track what it accepted and finish mapping; refine_steps > 0
+  // then refines the map that many steps before the answer (docs/protocol.md "Refinement").
+  bool close_session(const std::string& session, int timeout_ms, std::string* why,
+                     std::uint32_t refine_steps = 0);
   // Query-only use: succeeds when a map of that name is served.
   bool attach_map(const std::string& map_name, int timeout_ms, std::string* why);
   // Renders a map from a pose and waits up to timeout_ms for the images.
@@ -220,6 +244,9 @@ class Client {
   // gets the server-side folder.
   bool save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
                 std::string* saved_to, std::string* why);
+  // Post-trajectory refinement of a map the server streamed and no session streams into now:
+  // `steps` steps over its stored keyframes, then a new version (docs/protocol.md "Refinement").
+  bool refine_map(const std::string& map_name, std::uint32_t steps, int timeout_ms, std::string* why);
   // Loads <map_dir>/<folder> on the server and serves it as `map_name`.
   bool load_map(const std::string& map_name, const std::string& folder, int timeout_ms,
                 std::string* why);
@@ -241,6 +268,10 @@ class Client {
   void on_result(std::function<void(const ResultUpdate&)> callback);
   // Called on the listener thread for every status report of any session.
   void on_status(std::function<void(const StatusUpdate&)> callback);
+  // Called on the listener thread for every view pushed to a localise session this client
+  // opened (SessionOptions::view_rate_hz); the newest one only when views come faster than it
+  // returns.
+  void on_view(std::function<void(const ViewUpdate&)> callback);
   // Writers and readers matched so far (for waiting on discovery).
   std::uint32_t matched_servers() const;
 
@@ -248,7 +279,7 @@ class Client {
   struct Answer;
   void listen();
   bool control(const std::string& session, const std::string& map_name, bool open, bool attach_only,
-               FramePolicy policy, int timeout_ms, std::string* why);
+               const SessionOptions& options, int timeout_ms, std::string* why, std::uint32_t refine_steps = 0);
   // Sends `sample` with `writer` once a server matched, and waits for the result (client, id);
   // sends it again, same id, whenever a new server reader matches before the answer came, and,
   // when `repeatable` (the server may run it twice), after kFirstResendMs, twice that, ... without
@@ -264,12 +295,13 @@ class Client {
   std::string id_;
   Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_, status_topic_;
   Entity requests_topic_, frame_writer_, pose_reader_, control_writer_, request_writer_;
-  Entity result_reader_, status_reader_, waitset_;
+  Entity result_reader_, status_reader_, views_topic_, view_reader_, waitset_;
   std::string frames_refused_;  // why there is no frame writer (DDS Security), else empty
   std::mutex callback_mutex_;
   std::function<void(const PoseUpdate&)> pose_callback_;
   std::function<void(const ResultUpdate&)> result_callback_;
   std::function<void(const StatusUpdate&)> status_callback_;
+  std::function<void(const ViewUpdate&)> view_callback_;
   std::condition_variable result_arrived_;
   std::map<std::pair<std::string, std::uint64_t>, std::unique_ptr<Answer>> awaited_;
   std::set<std::string> addresses_;  // result `client` values meant for us: id_ and our sessions

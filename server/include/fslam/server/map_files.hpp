@@ -3,6 +3,8 @@
 //   poses.txt       "frame_id timestamp tx ty tz qx qy qz qw" per tracked frame, camera-to-world
 //   trajectory.txt  the same poses as a TUM trajectory, for evaluation tools
 //   camera.txt      "fx fy cx cy width height" of the camera the map was built with
+//   keyframes.bin   the keyframes' relocalisation descriptions (core/io/keyframe_file.hpp), for
+//                   sessions that localise in the map; absent when the map has none
 #pragma once
 
 #include <cstdint>
@@ -14,6 +16,7 @@
 
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/map/gaussian_map.hpp"
+#include "fslam/core/tracking/relocaliser.hpp"
 
 namespace fslam::server {
 
@@ -27,6 +30,7 @@ struct StoredMap {
   std::shared_ptr<const core::GaussianMap> gaussians;
   core::PinholeCamera camera;     // width 0 when no frame was ever seen
   std::vector<FramePose> poses;   // in processing order
+  std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes;  // null: none
 };
 
 // Writes the folder next to `dir` first (hidden: `.NAME.saving`) and renames it into place

@@ -15,6 +15,12 @@
 
 namespace fslam::server {
 
+// The views a session asks for when it opens (SessionControl view_rate_hz, view_channels): none
+// (rate 0), or a localise session's at a finite positive rate, of known channels (0: colour and
+// depth); `channels` gets the ones to render.
+bool check_view_request(bool localise, float rate_hz, std::uint32_t requested_channels, std::uint32_t* channels,
+                        std::string* why);
+
 // A render's channels (a non-empty set of CHANNEL_* bits) and depth scale (0: 1000 units per
 // metre); `depth_scale` gets the one to use.
 bool check_render_channels(std::uint32_t channels, float requested_depth_scale, float* depth_scale,

@@ -92,6 +92,7 @@ struct ServerConfig {
   std::size_t max_sessions = 16;                // streaming sessions at once
   std::size_t max_maps = 64;                    // maps held in memory (streamed, loaded)
   std::size_t max_prompts = 64;                 // points or boxes in one segment request
+  std::uint32_t max_refine_steps = 5000;        // refinement steps one request or close may ask
   // A save that would leave less than this free on map_dir's disk is refused before it writes
   // (a full disk mid-save is an error too, and leaves the previous version). 0 = no reserve.
   std::size_t min_free_disk_mb = 64;
@@ -179,7 +180,7 @@ class Server {
   std::function<void(const std::string&)> log_;
   client::Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_;
   client::Entity status_topic_, requests_topic_, frame_reader_, control_reader_, request_reader_;
-  client::Entity pose_writer_, result_writer_, status_writer_, waitset_;
+  client::Entity pose_writer_, result_writer_, status_writer_, views_topic_, view_writer_, waitset_;
   std::thread ingest_thread_;
   std::atomic<bool> stop_{false};
   std::shared_ptr<const core::Rasterizer> query_rasterizer_;

@@ -103,6 +103,7 @@ struct Query {
   bool has_output_view = false;
   fslam_proto_RenderRequest output_view{};
   ExportRequest export_request;  // REQUEST_MAP_GAUSSIANS
+  std::uint32_t refine_steps = 0;  // REQUEST_REFINE_MAP
 };
 
 Query query_of(const fslam_proto_Request& msg);
@@ -131,20 +132,26 @@ struct ResultImages {
   std::vector<std::vector<std::uint8_t>> buffers;
   std::vector<fslam_proto_Image> images;
 };
-// Result images as PNG on the wire: `result->images` points into `out`. False when one does not
-// encode.
-bool attach_images(const std::vector<cv::Mat>& mats, fslam_proto_Result* result, ResultImages* out);
+// Images as PNG on the wire (a result's or a view's): `images` points into `out`. False when one
+// does not encode.
+bool attach_images(const std::vector<cv::Mat>& mats, dds_sequence_fslam_proto_Image* images, ResultImages* out);
 
 // The view a result was rendered from: its pose (world <- camera) and intrinsics.
 void describe_view(const core::RenderView& view, const Eigen::Isometry3d& T_world_camera,
-                   fslam_proto_Result* result);
+                   fslam_proto_Pose* pose, fslam_proto_Intrinsics* intrinsics);
 
-// The server's writers of results and poses (they must outlive it), shared by sessions and
-// queries.
+// Renders `channels` of `map` in `view` (render_channels) and attaches them as PNG to `images`,
+// which points into `out`: a render request's answer and a localise session's view alike.
+bool render_to_wire(const core::Rasterizer& rasterizer, const core::GaussianMap& map,
+                    const core::RenderView& view, std::uint32_t channels, float depth_scale,
+                    dds_sequence_fslam_proto_Image* images, ResultImages* out, std::string* why);
+
+// The server's writers of results, poses and views (they must outlive it), shared by sessions
+// and queries.
 class Replies {
  public:
-  Replies(dds_entity_t pose_writer, dds_entity_t result_writer)
-      : pose_writer_(pose_writer), result_writer_(result_writer) {}
+  Replies(dds_entity_t pose_writer, dds_entity_t result_writer, dds_entity_t view_writer)
+      : pose_writer_(pose_writer), result_writer_(result_writer), view_writer_(view_writer) {}
   // A result without images: OK when `error` is empty, else ERROR with it.
   void result(const char* client, std::uint64_t request_id, const std::string& map_name,
               const std::string& error) const;
@@ -156,9 +163,11 @@ class Replies {
   // A frame accepted and then not tracked under the live policy, on the pose stream.
   void skip(const std::string& session, std::uint64_t frame_id, double timestamp,
             const std::string& reason) const;
+  // A render at a localise session's pose, on <prefix>/views.
+  void view(const fslam_proto_View& view) const;
 
  private:
-  dds_entity_t pose_writer_, result_writer_;
+  dds_entity_t pose_writer_, result_writer_, view_writer_;
 };
 
 }  // namespace fslam::server

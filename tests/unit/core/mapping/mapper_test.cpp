@@ -96,6 +96,23 @@ TEST(Mapper, BuildsAMapThatRendersHeldOutViews) {
   }
 }
 
+// A refinement told to stop (a server shutting down) publishes what it did and says so.
+TEST(Mapper, RefinementStopsWhenToldAndPublishes) {
+  Fixture f;
+  Mapper mapper(small_config(), make_cpu_rasterizer());
+  std::string why;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(0), nullptr, &why)) << why;
+  const std::uint64_t version = mapper.versions().version_number();
+  std::atomic<bool> stop{true};
+  EXPECT_FALSE(mapper.refine(50, &why, nullptr, &stop));
+  EXPECT_NE(why.find("stopped after 0 of 50 steps"), std::string::npos) << why;
+  EXPECT_EQ(mapper.versions().version_number(), version + 1);
+  stop = false;
+  int reported = 0;
+  EXPECT_TRUE(mapper.refine(20, &why, [&](int done, int) { reported = done; }, &stop)) << why;
+  EXPECT_EQ(reported, 20);
+}
+
 // Refinement at refine_scale recovers detail that training at training_scale alone cannot,
 // measured on held-out views at the input size.
 TEST(Mapper, RefinementAtRefineScaleSharpensTheInputSizeRender) {

@@ -316,6 +316,100 @@ TEST_F(TrackerOnSynthRoom, KidnappedCameraIsRelocalisedBeforeItIsLost) {
       << result.message;
 }
 
+// Localise only (session mode `localise`): a second tracker fixed on the first one's map and
+// keyframes finds frames it never tracked with no prior pose, follows them, and adds nothing;
+// a frame of another room is reported lost, and the next good frame is localised.
+TEST_F(TrackerOnSynthRoom, LocalisesInAFixedMapAndAddsNothing) {
+  Tracker builder(config());
+  std::vector<bool> keyframe;
+  track_all(&builder, *trajectory_, &TrackerOnSynthRoom::frame_at, &keyframe);
+  const std::size_t map_size = builder.local_map().size();
+  Tracker tracker(config());
+  tracker.start_in(builder.local_map(), builder.relocaliser().keyframes(), StartMode::localise);
+  ASSERT_TRUE(tracker.localising());
+  // Between the trajectory's frames: poses the builder never saw.
+  const auto between = [&](std::size_t i) {
+    const Eigen::Isometry3d& a = (*trajectory_)[i].T_world_camera;
+    const Eigen::Isometry3d& b = (*trajectory_)[i + 1].T_world_camera;
+    Eigen::Isometry3d mid = a;
+    mid.translation() = 0.5 * (a.translation() + b.translation());
+    mid.linear() = Eigen::Quaterniond(a.linear()).slerp(0.5, Eigen::Quaterniond(b.linear())).toRotationMatrix();
+    return mid;
+  };
+  std::string why;
+  TrackingResult result;
+  for (std::size_t i = 5; i + 1 < trajectory_->size(); i += 4) {
+    const Eigen::Isometry3d gt = between(i);
+    ASSERT_TRUE(tracker.track(frame_at(gt, 500 + static_cast<std::int64_t>(i)), &result, &why)) << why;
+    EXPECT_NE(result.state, TrackingState::lost) << "frame " << i << ": " << result.message;
+    EXPECT_EQ(result.state == TrackingState::recovered, i == 5) << "only the first frame relocalises";
+    EXPECT_FALSE(result.keyframe);
+    EXPECT_LT(translation_error(result.T_world_camera, gt), 0.01) << "frame " << i << ": " << result.message;
+    EXPECT_LT(rotation_error_deg(result.T_world_camera, gt), 1.0) << "frame " << i;
+  }
+  EXPECT_EQ(tracker.local_map().size(), map_size);
+  EXPECT_EQ(tracker.keyframe_count(), 0u);
+  EXPECT_EQ(tracker.relocaliser().size(), builder.relocaliser().size());
+
+  // A fresh localiser given a frame of another room first: lost, then the room's frame is found.
+  Tracker fresh(config());
+  fresh.start_in(builder.local_map(), builder.relocaliser().keyframes(), StartMode::localise);
+  const SyntheticRoom other = make_room(7);
+  const PinholeCamera camera = synth_default_camera().scaled(0.5);
+  const SynthView view = render_view(other, camera, (*trajectory_)[10].T_world_camera);
+  RgbdFrame elsewhere;
+  elsewhere.id = 900;
+  elsewhere.colour = view.colour;
+  elsewhere.depth = view.depth;
+  elsewhere.camera = camera;
+  ASSERT_TRUE(fresh.track(elsewhere, &result, &why)) << why;
+  EXPECT_EQ(result.state, TrackingState::lost);
+  EXPECT_NE(result.message.find("not localised"), std::string::npos) << result.message;
+  ASSERT_TRUE(result.relocalisation.has_value());
+  const Eigen::Isometry3d gt = between(21);
+  ASSERT_TRUE(fresh.track(frame_at(gt, 901), &result, &why)) << why;
+  EXPECT_EQ(result.state, TrackingState::recovered) << result.message;
+  EXPECT_LT(translation_error(result.T_world_camera, gt), 0.01) << result.message;
+}
+
+// Extend (session mode `extend`): a tracker started in the map and keyframes of the first 24
+// frames finds frame 24 with no prior pose, makes it its first keyframe, and tracks the rest of
+// the trajectory as in a new map: within 1 cm of the truth, adding keyframes and points beside
+// the map's, and describing them beside its keyframes.
+TEST_F(TrackerOnSynthRoom, ExtendsAMapFromARelocalisedFirstFrame) {
+  const std::size_t split = 24;
+  const Trajectory first(trajectory_->begin(), trajectory_->begin() + split);
+  Tracker builder(config());
+  std::vector<bool> keyframe;
+  track_all(&builder, first, &TrackerOnSynthRoom::frame_at, &keyframe);
+  const std::size_t map_size = builder.local_map().size(), described = builder.relocaliser().size();
+  ASSERT_GE(described, 2u);
+
+  Tracker tracker(config());
+  tracker.start_in(builder.local_map(), builder.relocaliser().keyframes(), StartMode::extend);
+  EXPECT_FALSE(tracker.localising());
+  std::string why;
+  TrackingResult result;
+  int keyframes = 0;
+  for (std::size_t i = split; i < trajectory_->size(); ++i) {
+    const Eigen::Isometry3d& gt = (*trajectory_)[i].T_world_camera;
+    ASSERT_TRUE(tracker.track(frame_at(gt, static_cast<std::int64_t>(i)), &result, &why)) << why;
+    if (i == split) {
+      EXPECT_EQ(result.state, TrackingState::recovered) << result.message;
+      EXPECT_TRUE(result.keyframe) << "the frame found is the session's first keyframe";
+    } else {
+      EXPECT_EQ(result.state, TrackingState::ok) << "frame " << i << ": " << result.message;
+    }
+    keyframes += result.keyframe;
+    EXPECT_LT(translation_error(result.T_world_camera, gt), 0.01) << "frame " << i << ": " << result.message;
+    EXPECT_LT(rotation_error_deg(result.T_world_camera, gt), 1.0) << "frame " << i;
+  }
+  EXPECT_GE(keyframes, 2) << "a 16-frame extension makes keyframes";
+  EXPECT_GT(tracker.local_map().size(), map_size) << "keyframes grow the map";
+  EXPECT_EQ(tracker.relocaliser().size(), described + static_cast<std::size_t>(keyframes))
+      << "new keyframes are described beside the map's";
+}
+
 TEST(RelocaliserConfig, RefusesBadSettings) {
   std::string why;
   EXPECT_TRUE(RelocaliserConfig{}.is_valid(&why)) << why;

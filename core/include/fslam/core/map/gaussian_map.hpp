@@ -81,6 +81,8 @@ class MapVersions {
   // Number of the newest version (0 before the first publish).
   std::uint64_t version_number() const;
   void publish(Version map);
+  // Continues another history (a map extended by a new session): the next publish is number + 1.
+  void continue_after(std::uint64_t number);
 
  private:
   mutable std::mutex mutex_;

@@ -5,6 +5,7 @@
 // is published as immutable versions.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -188,9 +189,11 @@ class Mapper {
   bool optimise(int iterations, std::string* why);
   // Post-trajectory refinement: recompute the 3D filter over all keyframes, then `steps` steps
   // with keyframes drawn uniformly; no insertion or importance pruning.
-  // progress (optional) is called every few steps with (steps done, steps).
+  // progress (optional) is called every few steps with (steps done, steps). When `stop` (optional)
+  // turns true, the steps done so far are published and refine returns false saying so.
   bool refine(int steps, std::string* why,
-              const std::function<void(int, int)>& progress = nullptr);
+              const std::function<void(int, int)>& progress = nullptr,
+              const std::atomic<bool>* stop = nullptr);
   // The heads the decoded L_feat runs through (a copy; its LoRA adapters train online from here).
   // Its latent width must be the map's. Without one, L_feat is the latent form.
   bool set_feature_decoder(const FeatureAutoencoder& decoder, std::string* why);

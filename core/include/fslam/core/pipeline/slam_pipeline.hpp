@@ -112,10 +112,23 @@ class SlamPipeline {
   void finish();
 
   // After run_mapping returned: post-trajectory refinement (paper), `steps` steps.
-  bool refine(int steps, std::string* why,
-              const std::function<void(int, int)>& progress = nullptr) {
-    return mapper_.refine(steps, why, progress);
+  bool refine(int steps, std::string* why, const std::function<void(int, int)>& progress = nullptr,
+              const std::atomic<bool>* stop = nullptr) {
+    return mapper_.refine(steps, why, progress, stop);
   }
+
+  // Starts in an existing map (session modes localise and extend, docs/protocol.md): the tracker
+  // registers against `map` (localisation_target of its Gaussians) and relocalises its first
+  // frame against `keyframes` (Tracker::start_in). localise: nothing reaches the mapper. extend:
+  // the mapper continues `map`, numbering its versions after `version_number`, and the map's
+  // keyframes are kept beside the ones this pipeline describes, renumbered -n..-1 oldest first
+  // so that they never meet the new frames' ids. False with `why` when the mapper cannot take
+  // `map` (another SH degree or feature width). Before the first frame.
+  bool start_in(const GaussianMap& map, std::uint64_t version_number, std::vector<DescribedKeyframe> keyframes,
+                StartMode mode, std::string* why);
+  // The keyframes the tracker described so far (relocalisation's, bounded by its max_keyframes),
+  // copied: saved with the map so that later sessions can relocalise in it. Any thread.
+  std::vector<DescribedKeyframe> described_keyframes() const;
 
   // The pipeline's config, mapper.feature_dim as the features give it.
   const PipelineConfig& config() const { return config_; }
@@ -162,6 +175,7 @@ class SlamPipeline {
   std::condition_variable wake_;
   std::deque<QueuedKeyframe> queue_;
   std::uint64_t keyframes_left_out_ = 0;  // guarded by mutex_
+  std::deque<DescribedKeyframe> described_;  // guarded by mutex_; copies of the tracker's
   void bound_queue_locked();
   bool finished_ = false;
 };

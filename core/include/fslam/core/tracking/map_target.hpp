@@ -8,6 +8,7 @@
 
 #include "fslam/core/map/gaussian_map.hpp"
 #include "fslam/core/tracking/gaussian_points.hpp"
+#include "fslam/core/tracking/local_map.hpp"
 #include "fslam/core/tracking/preprocess.hpp"
 
 namespace fslam::core {
@@ -28,5 +29,12 @@ struct MapTargetConfig {
 GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& centre_world,
                                  float radius, const MapTargetConfig& config,
                                  const PreprocessConfig& preprocess);
+
+// The target of a tracker started in an existing map (Tracker::start_in): every Gaussian of `map`
+// as map_target_points makes them, in one LocalMap that forgets nothing (no radius) and fuses
+// nothing. The depth-noise scaling is left out: there is no one camera to measure from, so
+// every covariance is the unit disc of the reference depth.
+LocalMap localisation_target(const GaussianMap& map, const LocalMapConfig& local_map,
+                             const MapTargetConfig& config, PreprocessConfig preprocess);
 
 }  // namespace fslam::core

@@ -7,6 +7,7 @@
 #include <deque>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "fslam/core/geometry/rgbd_frame.hpp"
 #include "fslam/core/render/planar_image.hpp"
@@ -68,6 +69,9 @@ struct TrackerConfig {
 };
 
 enum class TrackingState : std::uint8_t { initialising, ok, lost, recovered };
+
+// How a session starts in an existing map (Tracker::start_in, SlamPipeline::start_in).
+enum class StartMode : std::uint8_t { localise, extend };
 const char* to_string(TrackingState state);
 
 // Wall time of each stage of one frame, milliseconds.
@@ -131,6 +135,15 @@ class Tracker {
   // registers against a copy of it plus the keyframes it made since, which no version holds
   // yet (the bridge between a keyframe and the map version that contains it).
   void set_map_target(const LocalMap& target, std::int64_t last_keyframe_id);
+  // Starts in an existing map (session modes localise and extend, issue 20): `map` is the target
+  // (localisation_target of the map's Gaussians) and `keyframes` the relocaliser's; the first
+  // frame, and every frame until one is found, relocalises with no prior pose. localise: the
+  // target and keyframes stay fixed (no keyframe, no map point, no description is added) and a
+  // lost frame relocalises again. extend: the frame found becomes the first keyframe and
+  // tracking goes on as in a new map, describing new keyframes beside the map's. Before the
+  // first frame; reset() leaves the mode.
+  void start_in(LocalMap map, std::vector<DescribedKeyframe> keyframes, StartMode mode);
+  bool localising() const { return localising_; }
   const LocalMap& local_map() const { return map_; }
   std::size_t keyframe_count() const { return keyframes_.size(); }
   void reset();
@@ -156,6 +169,8 @@ class Tracker {
   // added to each new target copy).
   std::deque<Keyframe> unmapped_;
   Relocaliser relocaliser_;                       // every keyframe, described (bounded)
+  bool localising_ = false;                       // start_in localise: map and keyframes fixed
+  bool relocalise_first_ = false;                 // start_in: no pose until relocalised
 };
 
 }  // namespace fslam::core
