@@ -1,5 +1,7 @@
 // Client::push_frame: a frame encoded (raw rows, PNG or JPEG colour; raw or PNG depth) and
 // written on <prefix>/frames under the frame writer's flow control (docs/protocol.md).
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -51,7 +53,7 @@ fslam_proto_ImageEncoding wire(PayloadEncoding e) {
 
 }  // namespace
 
-bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why) {
+bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why, int wait_ms) {
   const CameraIntrinsics& k = frame.intrinsics;
   if (session.empty()) return fail(why, "push_frame: no session name");
   if (!frame_writer_) return fail(why, "push_frame: " + frames_refused_);
@@ -102,10 +104,16 @@ bool Client::push_frame(const std::string& session, const FrameInput& frame, std
   msg.has_gt_pose = frame.has_gt_pose;
   for (int i = 0; i < 3; ++i) msg.gt_pose.translation[i] = frame.gt_translation[i];
   for (int i = 0; i < 4; ++i) msg.gt_pose.rotation[i] = frame.gt_rotation[i];
-  const dds_return_t rc = dds_write(frame_writer_.get(), &msg);
+  // Each write blocks up to the reliability's 1 s while the frames in flight (kFramesInFlight,
+  // or Cyclone's limit on unacknowledged bytes) are not acknowledged; try again until wait_ms.
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::milliseconds(std::max(wait_ms, 0));
+  dds_return_t rc = dds_write(frame_writer_.get(), &msg);
+  while (rc == DDS_RETCODE_TIMEOUT && std::chrono::steady_clock::now() < give_up)
+    rc = dds_write(frame_writer_.get(), &msg);
   if (rc == DDS_RETCODE_TIMEOUT) {
-    return fail(why, "push_frame: the server has not taken the last " + std::to_string(kFramesInFlight) +
-                         " frames for 1 s; frame " + std::to_string(frame.frame_id) + " not sent");
+    return fail(why, "push_frame: the server has not acknowledged the frames in flight (at most " +
+                         std::to_string(kFramesInFlight) + ") for " + std::to_string(std::max(wait_ms, 1000) / 1000) +
+                         " s; frame " + std::to_string(frame.frame_id) + " not sent");
   }
   if (rc != DDS_RETCODE_OK) {
     return fail(why, std::string("push_frame: DDS write failed: ") + dds_strretcode(rc));

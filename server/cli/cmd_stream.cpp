@@ -366,7 +366,8 @@ int run_stream(const StreamArgs& args) {
       std::lock_guard<std::mutex> lock(mutex);
       sent[input.frame_id].encode_start = encode_start;  // a pose may arrive before push returns
     }
-    if (!client.push_frame(args.session, input, &why)) return fail(why);
+    // Flow control: a server slow for a while slows the playback (up to --timeout), no more.
+    if (!client.push_frame(args.session, input, &why, args.timeout_s * 1000)) return fail(why);
     {
       std::lock_guard<std::mutex> lock(mutex);
       sent[input.frame_id].written = std::chrono::steady_clock::now();
@@ -458,7 +459,8 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
                   "Frame policy of the session: live (track the newest frame, skip older ones "
                   "waiting), queue (track every frame), or the server's default")
       ->capture_default_str();
-  app->add_option("--timeout", args->timeout_s, "Seconds to wait for the last poses")
+  app->add_option("--timeout", args->timeout_s,
+                  "Seconds to wait for the last poses, and for the server to take a frame (flow control)")
       ->capture_default_str();
   app->add_option("--window", args->window,
                   "With --policy queue: at most this many frames sent and not answered yet (the "

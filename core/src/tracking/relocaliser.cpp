@@ -1,5 +1,6 @@
 #include "fslam/core/tracking/relocaliser.hpp"
 
+#include <limits>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -189,6 +190,18 @@ const Relocaliser::Entry* Relocaliser::find(std::int64_t id) const {
   for (const Entry& e : keyframes_)
     if (e.id == id) return &e;
   return nullptr;
+}
+
+std::optional<std::int64_t> Relocaliser::nearest_keyframe(const Eigen::Isometry3d& T_world_camera) const {
+  std::optional<std::int64_t> best;
+  double best_cost = std::numeric_limits<double>::infinity();
+  for (const Entry& e : keyframes_) {
+    const Eigen::AngleAxisd turn(e.T_world_camera.linear().transpose() * T_world_camera.linear());
+    const double cost = (e.T_world_camera.translation() - T_world_camera.translation()).norm() +
+                        kNearestMetresPerRadian * std::abs(turn.angle());
+    if (cost < best_cost) best_cost = cost, best = e.id;
+  }
+  return best;
 }
 
 std::vector<std::int64_t> Relocaliser::similar_keyframes(const FrameDescription& query, std::size_t count,

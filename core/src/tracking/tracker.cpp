@@ -253,12 +253,15 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
 
   // 2b. Wide baseline (issue 20): a registration that keeps few points may have settled in
   //     another basin of the nearest-neighbour cost; ORB matches to the last keyframe (RANSAC)
-  //     give a start that does not depend on the prediction.
-  if (config_.relocalisation.enabled && !keyframes_.empty() &&
-      gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
+  //     give a start that does not depend on the prediction. A localising tracker makes no
+  //     keyframes: the map's keyframe nearest the last pose serves instead.
+  std::optional<std::int64_t> reference;
+  if (localising_) reference = relocaliser_.nearest_keyframe(*T_last_);
+  else if (!keyframes_.empty()) reference = keyframes_.back().frame_id;
+  if (config_.relocalisation.enabled && reference && gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
     Eigen::Isometry3d T_guess;
     std::size_t matched = 0;
-    if (describe() && relocaliser_.pose_from_keyframe(description, keyframes_.back().frame_id, &T_guess, &matched)) {
+    if (describe() && relocaliser_.pose_from_keyframe(description, *reference, &T_guess, &matched)) {
       const GicpResult from_guess = register_frame(source, T_guess);
       if (!is_lost(from_guess) && from_guess.inlier_ratio > gicp.inlier_ratio) {
         gicp = from_guess;

@@ -218,8 +218,10 @@ class Client {
 
   // Encodes the frame and publishes it on <prefix>/frames for `session`. False with `why` for
   // bad input (no session, zero or non-finite intrinsics, missing images, a lossy depth
-  // encoding, an encoder failure), or when DDS Security does not let this client write frames.
-  bool push_frame(const std::string& session, const FrameInput& frame, std::string* why);
+  // encoding, an encoder failure), when DDS Security does not let this client write frames, or
+  // when the server has not acknowledged the frames in flight (flow control, docs/protocol.md)
+  // within `wait_ms`: the frame is then not sent.
+  bool push_frame(const std::string& session, const FrameInput& frame, std::string* why, int wait_ms = 1000);
   // Opens a streaming session on `map_name` (a new map, or options.mode localise or extend in a
   // served one) or closes it, and waits up to timeout_ms for the server's answer. False with `why` on
   // an error result or no answer.

@@ -4,6 +4,7 @@
 #include "fslam/core/tracking/tracker.hpp"
 
 #include <cmath>
+#include <optional>
 
 #include <gtest/gtest.h>
 
@@ -408,6 +409,33 @@ TEST_F(TrackerOnSynthRoom, ExtendsAMapFromARelocalisedFirstFrame) {
   EXPECT_GT(tracker.local_map().size(), map_size) << "keyframes grow the map";
   EXPECT_EQ(tracker.relocaliser().size(), described + static_cast<std::size_t>(keyframes))
       << "new keyframes are described beside the map's";
+}
+
+// The localising tracker's wide-baseline reference: the keyframe nearest a pose, by camera
+// centres plus half a metre per radian of turn.
+TEST(Relocaliser, NearestKeyframeWeighsDistanceAndTurn) {
+  Relocaliser relocaliser{RelocaliserConfig{}};
+  EXPECT_FALSE(relocaliser.nearest_keyframe(Eigen::Isometry3d::Identity()).has_value());
+  const auto add = [&](std::int64_t id, const Eigen::Vector3d& t, double yaw) {
+    DescribedKeyframe kf;
+    kf.id = id;
+    kf.T_world_camera.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    kf.T_world_camera.translation() = t;
+    kf.description.descriptors = cv::Mat(1, 32, CV_8UC1, cv::Scalar(7));
+    kf.description.points = {Eigen::Vector3f(0.0f, 0.0f, 1.0f)};
+    kf.description.global = {1.0f};
+    relocaliser.add_keyframe(std::move(kf));
+  };
+  add(-2, {0.0, 0.0, 0.0}, 0.0);   // a saved map's keyframe (ids below the new frames')
+  add(5, {0.3, 0.0, 0.0}, 0.0);
+  add(9, {0.05, 0.0, 0.0}, M_PI / 2);
+  Eigen::Isometry3d query = Eigen::Isometry3d::Identity();
+  query.translation() = Eigen::Vector3d(0.1, 0.0, 0.0);
+  EXPECT_EQ(relocaliser.nearest_keyframe(query), std::optional<std::int64_t>(-2));
+  query.translation() = Eigen::Vector3d(0.25, 0.0, 0.0);
+  EXPECT_EQ(relocaliser.nearest_keyframe(query), std::optional<std::int64_t>(5));
+  query.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  EXPECT_EQ(relocaliser.nearest_keyframe(query), std::optional<std::int64_t>(9)) << "the turn outweighs 20 cm";
 }
 
 TEST(RelocaliserConfig, RefusesBadSettings) {

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <deque>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -117,6 +118,10 @@ class Relocaliser {
                           Eigen::Isometry3d* T_world_camera, std::size_t* inliers) const;
 
   std::size_t size() const { return keyframes_.size(); }
+  // The keyframe whose pose is nearest `T_world_camera`: camera centres' distance plus
+  // kNearestMetresPerRadian times the rotation between them; none when no keyframe is kept.
+  std::optional<std::int64_t> nearest_keyframe(const Eigen::Isometry3d& T_world_camera) const;
+  static constexpr double kNearestMetresPerRadian = 0.5;
   void clear();
 
  private:
