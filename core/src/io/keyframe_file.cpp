@@ -35,6 +35,7 @@ class Reader {
   }
   bool get_bytes(void* out, std::size_t size) {
     if (size > bytes_.size() - at_) return false;
+    if (size == 0) return true;  // `out` may be an empty vector's null data (memcpy must not see it)
     std::memcpy(out, bytes_.data() + at_, size);
     at_ += size;
     return true;
