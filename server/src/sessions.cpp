@@ -1,5 +1,6 @@
 #include "sessions.hpp"
 
+#include <cstdio>
 #include <sstream>
 #include <utility>
 
@@ -155,6 +156,7 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
     s->localise = msg.mode == fslam_proto_SESSION_LOCALISE;
     std::uint32_t view_channels = 0;
     if (!check_view_request(s->localise, msg.view_rate_hz, msg.view_channels, &view_channels, &why)) return reply(why);
+    const Clock::time_point t_open = Clock::now();
     if (s->localise) {
       s->pipeline = make_localiser(map_name, &s->map, &why);
     } else if (msg.mode == fslam_proto_SESSION_MAP) {
@@ -169,6 +171,15 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
       why = "unknown session mode " + std::to_string(static_cast<int>(msg.mode)) + " (map, localise or extend)";
     }
     if (!s->pipeline) return reply(why);
+    if (msg.mode != fslam_proto_SESSION_MAP && log_) {
+      // Made under the sessions' lock (frames of other sessions wait meanwhile): say how long.
+      char line[256];
+      std::snprintf(line, sizeof line, "session '%s' %s map '%s': %zu target points from its Gaussians, %zu keyframes to relocalise against, "
+                    "built in %.0f ms", name.c_str(), s->localise ? "localises in" : "extends", map_name.c_str(),
+                    s->pipeline->tracker().local_map().size(), s->pipeline->tracker().relocaliser().size(),
+                    ms_since(t_open));
+      log_(line);
+    }
     if (msg.view_rate_hz > 0.0f) {
       s->views = std::make_unique<ViewStream>(name, s->map, view_rasterizer_, replies_, msg.view_rate_hz,
                                               view_channels, log_);
