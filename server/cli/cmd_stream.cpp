@@ -184,12 +184,11 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
     if (args.views_hz > 0) std::printf("; %zu views received", o.views);
     std::printf("\n");
     if (dataset.has_ground_truth()) {
-      std::map<double, Eigen::Isometry3d> truth;
-      for (const core::StampedPose& p : dataset.ground_truth()) truth[p.timestamp] = p.T_world_camera;
+      const core::Trajectory truth = dataset.ground_truth();
       std::vector<double> errors_m;
       for (const core::StampedPose& p : o.trajectory) {
-        const auto it = truth.find(p.timestamp);
-        if (it != truth.end()) errors_m.push_back((p.T_world_camera.translation() - it->second.translation()).norm());
+        const core::StampedPose* gt = core::nearest_pose(truth, p.timestamp);
+        if (gt != nullptr) errors_m.push_back((p.T_world_camera.translation() - gt->T_world_camera.translation()).norm());
       }
       std::sort(errors_m.begin(), errors_m.end());
       if (!errors_m.empty()) {

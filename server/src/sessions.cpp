@@ -56,7 +56,8 @@ struct Sessions::Session {
   std::shared_ptr<MapEntry> map;
   std::shared_ptr<core::SlamPipeline> pipeline;
   fslam_proto_SessionMode mode = fslam_proto_SESSION_MAP;
-  bool localise = false;              // mode localise: the pipeline is the session's, not the map's
+  // Mode localise: the pipeline is the session's, not the map's, and nothing reaches the map.
+  bool localises() const { return mode == fslam_proto_SESSION_LOCALISE; }
   std::unique_ptr<ViewStream> views;  // localise with views asked for: renders at its poses
   bool live = true;  // frame policy: live (newest frame only) or queue
   std::mutex mutex;
@@ -116,10 +117,10 @@ void Sessions::handle_control(const fslam_proto_SessionControl& msg) {
     if (it == sessions_.end()) {
       return replies_.result(msg.session, msg.request_id, map_name, "unknown session '" + name + "'");
     }
-    if (msg.refine_steps > 0 && (it->second->localise || msg.refine_steps > config_.max_refine_steps)) {
+    if (msg.refine_steps > 0 && (it->second->localises() || msg.refine_steps > config_.max_refine_steps)) {
       // Refused before anything closes: the client may close again without it.
       return replies_.result(msg.session, msg.request_id, map_name,
-                             it->second->localise ? "close: a localise session has no map of its own to refine"
+                             it->second->localises() ? "close: a localise session has no map of its own to refine"
                                                   : "close: refine_steps must be at most " +
                                                         std::to_string(config_.max_refine_steps) +
                                                         " (server.max_refine_steps)");
@@ -153,11 +154,10 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
     auto s = std::make_unique<Session>();
     s->name = name;
     s->mode = msg.mode;
-    s->localise = msg.mode == fslam_proto_SESSION_LOCALISE;
     std::uint32_t view_channels = 0;
-    if (!check_view_request(s->localise, msg.view_rate_hz, msg.view_channels, &view_channels, &why)) return reply(why);
+    if (!check_view_request(s->localises(), msg.view_rate_hz, msg.view_channels, &view_channels, &why)) return reply(why);
     const Clock::time_point t_open = Clock::now();
-    if (s->localise) {
+    if (s->localises()) {
       s->pipeline = make_localiser(map_name, &s->map, &why);
     } else if (msg.mode == fslam_proto_SESSION_MAP) {
       s->map = maps_.open_streaming(
@@ -175,7 +175,7 @@ void Sessions::open_session(const fslam_proto_SessionControl& msg, const std::st
       // Made under the sessions' lock (frames of other sessions wait meanwhile): say how long.
       char line[256];
       std::snprintf(line, sizeof line, "session '%s' %s map '%s': %zu target points from its Gaussians, %zu keyframes to relocalise against, "
-                    "built in %.0f ms", name.c_str(), s->localise ? "localises in" : "extends", map_name.c_str(),
+                    "built in %.0f ms", name.c_str(), s->localises() ? "localises in" : "extends", map_name.c_str(),
                     s->pipeline->tracker().local_map().size(), s->pipeline->tracker().relocaliser().size(),
                     ms_since(t_open));
       log_(line);
@@ -270,7 +270,7 @@ void Sessions::start_threads(Session* raw) {
   } else {
     raw->tracking = std::thread([this, raw] { run_on_one_thread([&] { prepare_and_track_frames(raw); }); });
   }
-  if (raw->localise) return;  // nothing to map
+  if (raw->localises()) return;  // nothing to map
   raw->mapping = std::make_unique<MappingThread>(
       raw->pipeline.get(), config_.mapping_threads, config_.pipeline.realtime,
       [this, raw](const core::KeyframeReport& report) {
@@ -387,7 +387,7 @@ void Sessions::finish_session(Session* s) {
   s->views.reset();  // the last view offered is sent
   s->pipeline->finish();
   if (s->mapping) s->mapping->join();
-  if (s->localise) return;  // the map was never the session's
+  if (s->localises()) return;  // the map was never the session's
   std::lock_guard<std::mutex> lock(s->map->mutex);
   s->map->streaming = false;
 }
@@ -631,7 +631,7 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
     replies_.result(s->name.c_str(), frame_id, s->map->name, why);
     return;
   }
-  if (!s->localise) {  // a localising session's poses are its client's, not the map's
+  if (!s->localises()) {  // a localising session's poses are its client's, not the map's
     std::lock_guard<std::mutex> lock(s->map->mutex);
     MapEntry& map = *s->map;
     map.camera = camera;

@@ -4,8 +4,6 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
-#include <iterator>
-#include <sstream>
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/file_writer.hpp"

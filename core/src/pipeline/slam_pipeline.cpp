@@ -205,12 +205,14 @@ bool SlamPipeline::start_in(const GaussianMap& map, std::uint64_t version_number
     if (!mapper_.set_map(map, why)) return false;
     const auto n = static_cast<std::int64_t>(keyframes.size());
     for (std::int64_t i = 0; i < n; ++i) keyframes[static_cast<std::size_t>(i)].id = i - n;
-    std::lock_guard<std::mutex> lock(mutex_);
-    described_.assign(keyframes.begin(), keyframes.end());
-    while (described_.size() > config_.tracker.relocalisation.max_keyframes) described_.pop_front();
   }
   const TrackerConfig& t = config_.tracker;
   tracker_.start_in(localisation_target(map, t.local_map, t.map_target, t.preprocess), std::move(keyframes), mode);
+  if (mode == StartMode::extend) {  // kept with the map: the relocaliser's, as it bounded them
+    const std::vector<DescribedKeyframe> kept = tracker_.relocaliser().keyframes();
+    std::lock_guard<std::mutex> lock(mutex_);
+    described_.assign(kept.begin(), kept.end());
+  }
   return true;
 }
 

@@ -1,10 +1,10 @@
 #include "fslam/core/tracking/relocaliser.hpp"
 
-#include <limits>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <iomanip>
+#include <limits>
 #include <random>
 #include <sstream>
 

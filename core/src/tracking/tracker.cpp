@@ -256,9 +256,11 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   //     give a start that does not depend on the prediction. A localising tracker makes no
   //     keyframes: the map's keyframe nearest the last pose serves instead.
   std::optional<std::int64_t> reference;
-  if (localising_) reference = relocaliser_.nearest_keyframe(*T_last_);
-  else if (!keyframes_.empty()) reference = keyframes_.back().frame_id;
-  if (config_.relocalisation.enabled && reference && gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
+  if (config_.relocalisation.enabled && gicp.inlier_ratio < config_.wide_baseline_inlier_ratio) {
+    if (localising_) reference = relocaliser_.nearest_keyframe(*T_last_);  // a scan of the map's keyframes
+    else if (!keyframes_.empty()) reference = keyframes_.back().frame_id;
+  }
+  if (reference) {
     Eigen::Isometry3d T_guess;
     std::size_t matched = 0;
     if (describe() && relocaliser_.pose_from_keyframe(description, *reference, &T_guess, &matched)) {
