@@ -49,6 +49,7 @@ fs::path previous_of(const fs::path& dir) { return dir.parent_path() / ("." + di
 // Written last into the staging folder: a staging folder without it is half a save.
 constexpr const char* kCompleteMarker = ".complete";
 constexpr const char* kKeyframeFile = "keyframes.bin";
+constexpr const char* kHeadsFile = "heads.fae";
 
 // Fault tests only (tests/integration/save_kill_test.sh): FSLAM_FAULT_SAVE_PAUSE_MS widens the
 // steps of the swap so that a kill lands inside them; unset (always, in use) it costs nothing.
@@ -129,6 +130,7 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
       !core::write_file((staging / "camera.txt").string(), camera, why) ||
       (map.keyframes && !map.keyframes->empty() &&
        !core::write_keyframe_file((staging / kKeyframeFile).string(), *map.keyframes, why)) ||
+      (map.heads && !map.heads->save((staging / kHeadsFile).string(), why)) ||
       !core::write_file((staging / kCompleteMarker).string(), "", why) || !core::sync_directory(staging.string(), why)) {
     // A full disk lands here ("No space left on device"): the previous version is untouched.
     fs::remove_all(staging, ec);
@@ -198,6 +200,14 @@ bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why) {
       return false;
     }
     loaded.keyframes = std::move(keyframes);
+  }
+  if (fs::exists(folder / kHeadsFile)) {
+    auto heads = std::make_shared<core::FeatureAutoencoder>();
+    if (!heads->load((folder / kHeadsFile).string(), why)) {
+      if (why) *why = "load map: " + *why;
+      return false;
+    }
+    loaded.heads = std::move(heads);
   }
   *map = std::move(loaded);
   return true;

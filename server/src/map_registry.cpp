@@ -149,6 +149,7 @@ bool MapRegistry::load(const std::string& name, const std::string& folder, std::
   map->camera = stored.camera;
   map->poses = std::move(stored.poses);
   map->loaded_keyframes = std::move(stored.keyframes);
+  map->loaded_heads = std::move(stored.heads);
   for (std::size_t i = 0; i < map->poses.size(); ++i) map->pose_index[map->poses[i].frame_id] = i;
   map->saved = {map->loaded.version_number(), map->poses.size()};
   std::lock_guard<std::mutex> lock(mutex_);
@@ -177,8 +178,11 @@ bool MapRegistry::enough_disk_for(const StoredMap& stored, std::string* why) con
   // map.ply, and poses.txt + trajectory.txt at under 200 bytes a line each (format_poses);
   // keyframes.bin at ~25 KB a keyframe (500 ORB keypoints of 44 bytes, a 768-value thumbnail).
   const std::uint64_t keyframes = stored.keyframes ? stored.keyframes->size() : 0;
-  const std::uint64_t needed =
-      core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() + 32768 * keyframes + 4096;
+  // heads.fae: its parameters and the normalisation as f32, names and shapes under 4 KB.
+  const std::uint64_t heads =
+      stored.heads ? 4 * (stored.heads->parameters().size() + 2 * stored.heads->input_mean().size()) + 4096 : 0;
+  const std::uint64_t needed = core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() +
+                               32768 * keyframes + heads + 4096;
   const std::uint64_t reserve = static_cast<std::uint64_t>(config_.min_free_disk_mb) << 20;
   if (space.available >= needed + reserve) return true;
   const auto mib = [](std::uint64_t bytes) { return std::to_string((bytes + (1 << 20) - 1) >> 20); };
@@ -198,6 +202,7 @@ bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* wh
     stored.poses = map.poses;
   }
   stored.keyframes = map.keyframes();
+  stored.heads = map.heads();
   if (!enough_disk_for(stored, why)) return false;
   if (!save_map_folder(folder, stored, why)) return false;
   // Only a save to the map's own folder (the one a restart loads it from) counts as saved.

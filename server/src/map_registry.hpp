@@ -43,6 +43,8 @@ struct MapEntry {
 
   // A loaded map's keyframe descriptions (map_files.hpp keyframes.bin); null: none saved.
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> loaded_keyframes;
+  // A loaded map's online feature heads (map_files.hpp heads.fae); null: none saved.
+  std::shared_ptr<const core::FeatureAutoencoder> loaded_heads;
 
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
   // The keyframes a session can relocalise against: those the streaming pipeline described so
@@ -50,6 +52,11 @@ struct MapEntry {
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes() const {
     if (!pipeline) return loaded_keyframes;
     return std::make_shared<const std::vector<core::DescribedKeyframe>>(pipeline->described_keyframes());
+  }
+  // The heads the map's latents were fitted through: the streaming pipeline's online ones as of
+  // its newest version, or the loaded ones (null: none, as without the decoded L_feat).
+  std::shared_ptr<const core::FeatureAutoencoder> heads() const {
+    return pipeline ? pipeline->feature_heads() : loaded_heads;
   }
 };
 

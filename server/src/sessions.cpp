@@ -224,7 +224,7 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_localiser(const std::string& 
   config.features = {};
   config.tracker.relocalisation.enabled = true;
   auto pipeline = std::make_shared<core::SlamPipeline>(config, nullptr);
-  if (!pipeline->start_in(*version, 0, *keyframes, core::StartMode::localise, why)) return nullptr;
+  if (!pipeline->start_in(*version, 0, *keyframes, core::StartMode::localise, nullptr, why)) return nullptr;
   return pipeline;
 }
 
@@ -238,10 +238,15 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_extender(MapEntry& map, std::
   if (!startable(map, "extend", &version, &keyframes, why)) return nullptr;
   std::shared_ptr<core::SlamPipeline> pipeline = make_pipeline(why);
   std::string reason;
+  const std::shared_ptr<const core::FeatureAutoencoder> heads = map.heads();
   if (pipeline && !pipeline->start_in(*version, map.versions().version_number(), *keyframes,
-                                      core::StartMode::extend, &reason)) {
+                                      core::StartMode::extend, heads.get(), &reason)) {
     core::fail(why, "extend map '" + map.name + "': " + reason);
     return nullptr;
+  }
+  if (pipeline && pipeline->feature_heads() && log_) {
+    log_("extend map '" + map.name + "': the decoded L_feat continues through " +
+         (heads ? std::string("the map's online feature heads") : "the pretrained heads (the map has none saved)"));
   }
   return pipeline;
 }

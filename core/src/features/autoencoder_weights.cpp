@@ -9,6 +9,7 @@
 
 #include "autoencoder_math.hpp"
 #include "fslam/core/error.hpp"
+#include "fslam/core/io/file_writer.hpp"
 
 namespace fslam::core {
 
@@ -134,12 +135,23 @@ bool FeatureAutoencoder::save(const std::string& path, std::string* why) const {
     w.u32(static_cast<std::uint32_t>(t.cols));
     w.floats(params_.data() + t.offset, t.size());
   }
-  std::ofstream file(path, std::ios::binary | std::ios::trunc);
-  if (!file) return fail(why, "autoencoder: cannot write " + path);
-  file.write(w.bytes().data(), static_cast<std::streamsize>(w.bytes().size()));
-  file.close();
-  if (!file) return fail(why, "autoencoder: writing " + path + " failed");
+  // Checked writes and fsync (a full disk names the file): the file may be part of a map's save.
+  if (!write_file(path, std::string(w.bytes().begin(), w.bytes().end()), why)) {
+    if (why != nullptr) *why = "autoencoder: " + *why;
+    return false;
+  }
   return true;
+}
+
+bool FeatureAutoencoder::same_body(const FeatureAutoencoder& other) const {
+  const FeatureAutoencoderConfig& a = config_;
+  const FeatureAutoencoderConfig& b = other.config_;
+  return a.level_channels == b.level_channels && a.latent_dim == b.latent_dim &&
+         a.encoder_hidden == b.encoder_hidden && a.head_hidden == b.head_hidden &&
+         a.activation == b.activation && a.lora_rank == b.lora_rank && a.lora_alpha == b.lora_alpha &&
+         mean_ == other.mean_ && std_ == other.std_ && body_size_ == other.body_size_ &&
+         std::equal(params_.begin(), params_.begin() + static_cast<std::ptrdiff_t>(body_size_),
+                    other.params_.begin());
 }
 
 bool FeatureAutoencoder::load(const std::string& path, std::string* why) {

@@ -368,6 +368,18 @@ bool Mapper::set_feature_decoder(const FeatureAutoencoder& decoder, std::string*
   return true;
 }
 
+bool Mapper::continue_feature_decoder(const FeatureAutoencoder& heads, std::string* why) {
+  if (feature_decoder() == nullptr) return true;
+  if (!decoder_->same_body(heads)) {
+    return fail(why, "the map's online heads (heads.fae) belong to other autoencoder weights than this "
+                     "server's features.autoencoder_path: its Gaussians' latents are in another space");
+  }
+  decoder_ = heads;
+  decoder_->set_mode(AutoencoderMode::online);
+  published_heads_steps_ = -1;  // the next version carries them
+  return true;
+}
+
 const FeatureAutoencoder* Mapper::feature_decoder() const {
   return config_.feature_loss == MapperConfig::FeatureLoss::decoded && decoder_ ? &*decoder_ : nullptr;
 }
@@ -526,7 +538,21 @@ void Mapper::reset_round() {
   seen_.assign(map_.size(), 0);
 }
 
-void Mapper::publish() { versions_.publish(std::make_shared<const GaussianMap>(map_)); }
+void Mapper::publish() {
+  versions_.publish(std::make_shared<const GaussianMap>(map_));
+  // The heads go with the version (copied only when LoRA stepped since: ~0.4 MB, next to the map's copy).
+  const FeatureAutoencoder* heads = feature_decoder();
+  if (heads == nullptr || heads->online_steps() == published_heads_steps_) return;
+  auto copy = std::make_shared<const FeatureAutoencoder>(*heads);
+  published_heads_steps_ = heads->online_steps();
+  std::lock_guard<std::mutex> lock(heads_mutex_);
+  heads_ = std::move(copy);
+}
+
+std::shared_ptr<const FeatureAutoencoder> Mapper::published_heads() const {
+  std::lock_guard<std::mutex> lock(heads_mutex_);
+  return heads_;
+}
 
 bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats,
                           std::string* why) {

@@ -199,10 +199,12 @@ bool SlamPipeline::process_frame(const RgbdFrame& frame, TrackingResult* result,
 }
 
 bool SlamPipeline::start_in(const GaussianMap& map, std::uint64_t version_number,
-                            std::vector<DescribedKeyframe> keyframes, StartMode mode, std::string* why) {
+                            std::vector<DescribedKeyframe> keyframes, StartMode mode,
+                            const FeatureAutoencoder* heads, std::string* why) {
   if (mode == StartMode::extend) {
     mapper_.versions().continue_after(version_number);
-    if (!mapper_.set_map(map, why)) return false;
+    if (heads != nullptr && !mapper_.continue_feature_decoder(*heads, why)) return false;
+    if (!mapper_.set_map(map, why)) return false;  // publishes the first version, with the heads
     const auto n = static_cast<std::int64_t>(keyframes.size());
     for (std::int64_t i = 0; i < n; ++i) keyframes[static_cast<std::size_t>(i)].id = i - n;
   }

@@ -83,6 +83,42 @@ TEST(MapFiles, SaveThenLoadGivesTheSameMapPosesAndCamera) {
   EXPECT_FALSE(std::filesystem::exists(dir.parent_path() / ".room.old"));
 }
 
+// The online heads (heads.fae) go with the map: saved bit for bit, absent when the map has none,
+// and a damaged file is the load's clear error.
+TEST(MapFiles, OnlineFeatureHeadsAreSavedAndLoadedWithTheMap) {
+  namespace fs = std::filesystem;
+  const auto dir = test::fresh_temp_dir("heads") / "room";
+  core::FeatureAutoencoderConfig config;
+  config.level_channels = {6, 4};
+  config.latent_dim = 4;
+  config.encoder_hidden = 8;
+  config.head_hidden = 8;
+  auto heads = std::make_shared<core::FeatureAutoencoder>(config);
+  for (int i = 0; i < static_cast<int>(heads->tensors().size()); ++i)  // LoRA as online mapping left it
+    if (heads->tensors()[i].lora)
+      for (std::size_t k = 0; k < heads->tensors()[i].size(); ++k) heads->tensor_data(i)[k] = 0.01f * (k % 7) - 0.03f;
+  StoredMap saved = small_map();
+  std::string why;
+  ASSERT_TRUE(save_map_folder(dir.string(), saved, &why)) << why;  // mapped without the decoded L_feat
+  EXPECT_FALSE(fs::exists(dir / "heads.fae"));
+  StoredMap loaded;
+  ASSERT_TRUE(load_map_folder(dir.string(), &loaded, &why)) << why;
+  EXPECT_EQ(loaded.heads, nullptr);
+
+  saved.heads = heads;
+  ASSERT_TRUE(save_map_folder(dir.string(), saved, &why)) << why;
+  ASSERT_TRUE(load_map_folder(dir.string(), &loaded, &why)) << why;
+  ASSERT_NE(loaded.heads, nullptr);
+  EXPECT_EQ(loaded.heads->parameters(), heads->parameters());
+  EXPECT_TRUE(loaded.heads->same_body(*heads));
+
+  fs::resize_file(dir / "heads.fae", fs::file_size(dir / "heads.fae") - 3);
+  EXPECT_FALSE(load_map_folder(dir.string(), &loaded, &why));
+  EXPECT_NE(why.find("load map: "), std::string::npos) << why;
+  EXPECT_NE(why.find("heads.fae"), std::string::npos) << why;
+  EXPECT_NE(why.find("truncated"), std::string::npos) << why;
+}
+
 // A save killed at any point leaves a whole version that recover_map_folder (run by the server
 // at start and before each save) puts back in place: the states each step of the swap leaves.
 TEST(MapFiles, AnInterruptedSaveRecoversAWholeVersion) {

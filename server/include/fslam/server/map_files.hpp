@@ -5,6 +5,9 @@
 //   camera.txt      "fx fy cx cy width height" of the camera the map was built with
 //   keyframes.bin   the keyframes' relocalisation descriptions (core/io/keyframe_file.hpp), for
 //                   sessions that localise in the map; absent when the map has none
+//   heads.fae       the feature autoencoder with the heads' LoRA as online mapping adapted them
+//                   (core/features/feature_autoencoder.hpp's weights file), for sessions that
+//                   extend the map; absent when it was mapped without the decoded L_feat
 #pragma once
 
 #include <cstdint>
@@ -14,6 +17,7 @@
 
 #include <Eigen/Geometry>
 
+#include "fslam/core/features/feature_autoencoder.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/map/gaussian_map.hpp"
 #include "fslam/core/tracking/relocaliser.hpp"
@@ -31,6 +35,7 @@ struct StoredMap {
   core::PinholeCamera camera;     // width 0 when no frame was ever seen
   std::vector<FramePose> poses;   // in processing order
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes;  // null: none
+  std::shared_ptr<const core::FeatureAutoencoder> heads;  // null: none (no decoded L_feat)
 };
 
 // Writes the folder next to `dir` first (hidden: `.NAME.saving`) and renames it into place

@@ -321,10 +321,16 @@ TEST(Mapper, LearnsFeatureChannels) {
   EXPECT_LT(feature_error(refined), coarse);
 }
 
-// The paper's L_feat: the rendered latent decoded by the heads against the encoder's pyramid at
-// the keyframe's sample pixels, the heads' LoRA trained online.
-TEST(Mapper, DecodedFeatureLossTrainsTheLatentsAndTheHeadsLoRA) {
-  Fixture f;
+// A keyframe with the decoded L_feat's inputs: a pyramid whose channels are functions of the
+// surface's instance (6 channels at half size, 4 at full size), phi(u) as the new Gaussians'
+// initial latents, and the observation at 1024 sample pixels, for heads of `ae_config`'s shapes.
+struct DecodedKeyframe {
+  FeatureAutoencoder pretrained;
+  FeaturePyramid pyramid;
+  MapperKeyframe keyframe;
+};
+
+FeatureAutoencoderConfig small_autoencoder_config() {
   FeatureAutoencoderConfig ae_config;
   ae_config.level_channels = {6, 4};
   ae_config.latent_dim = 3;
@@ -333,14 +339,15 @@ TEST(Mapper, DecodedFeatureLossTrainsTheLatentsAndTheHeadsLoRA) {
   ae_config.lora_rank = 2;
   ae_config.online.warmup_steps = 10;
   ae_config.online.learning_rate = 1e-2f;
-  const FeatureAutoencoder pretrained(ae_config);
-  // A pyramid whose channels are functions of the surface's instance: 6 channels at half size,
-  // 4 at full size.
+  return ae_config;
+}
+
+DecodedKeyframe decoded_keyframe(const Fixture& f) {
+  DecodedKeyframe d{FeatureAutoencoder(small_autoencoder_config()), {}, {}};
   const SynthView view = render_view(f.room, f.camera, f.trajectory[0].T_world_camera);
   const int W = f.camera.width, H = f.camera.height;
-  FeaturePyramid pyramid;
-  pyramid.image_width = W;
-  pyramid.image_height = H;
+  d.pyramid.image_width = W;
+  d.pyramid.image_height = H;
   for (const FeatureLevelShape& s : {FeatureLevelShape{6, H / 2, W / 2}, FeatureLevelShape{4, H, W}}) {
     FeatureLevel level;
     level.resize(s);
@@ -351,21 +358,34 @@ TEST(Mapper, DecodedFeatureLossTrainsTheLatentsAndTheHeadsLoRA) {
           const int id = view.instance_label.at<std::uint16_t>(y * step, x * step);
           level.channel(c)[y * s.width + x] = std::sin(1.7f * id + 0.9f * c + 0.3f * s.channels);
         }
-    pyramid.levels.push_back(std::move(level));
+    d.pyramid.levels.push_back(std::move(level));
   }
-  MapperKeyframe kf = f.keyframe(0);
-  kf.feature_target = PlanarImage(W, H, 3);  // phi(u): the new Gaussians' initial latents
+  d.keyframe = f.keyframe(0);
+  d.keyframe.feature_target = PlanarImage(W, H, 3);
   std::vector<float> u(10), latent(3);
   for (int v = 0; v < H; ++v)
     for (int x = 0; x < W; ++x) {
-      sample_features(pyramid, static_cast<float>(x), static_cast<float>(v), u.data());
-      pretrained.encode(u.data(), 1, latent.data());
-      for (int c = 0; c < 3; ++c) kf.feature_target.at(c, v, x) = latent[c];
+      sample_features(d.pyramid, static_cast<float>(x), static_cast<float>(v), u.data());
+      d.pretrained.encode(u.data(), 1, latent.data());
+      for (int c = 0; c < 3; ++c) d.keyframe.feature_target.at(c, v, x) = latent[c];
     }
   std::string why;
-  ASSERT_TRUE(observe_features(pyramid, W, H, 1024, 1, pretrained.input_mean(), pretrained.input_std(),
-                               &kf.feature_observation, &why)) << why;
+  EXPECT_TRUE(observe_features(d.pyramid, W, H, 1024, 1, d.pretrained.input_mean(), d.pretrained.input_std(),
+                               &d.keyframe.feature_observation, &why)) << why;
+  return d;
+}
 
+// The paper's L_feat: the rendered latent decoded by the heads against the encoder's pyramid at
+// the keyframe's sample pixels, the heads' LoRA trained online.
+TEST(Mapper, DecodedFeatureLossTrainsTheLatentsAndTheHeadsLoRA) {
+  Fixture f;
+  const FeatureAutoencoderConfig ae_config = small_autoencoder_config();
+  DecodedKeyframe d = decoded_keyframe(f);
+  const FeatureAutoencoder& pretrained = d.pretrained;
+  const FeaturePyramid& pyramid = d.pyramid;
+  const MapperKeyframe& kf = d.keyframe;
+  const int W = f.camera.width, H = f.camera.height;
+  std::string why;
   MapperConfig config = small_config();
   config.feature_dim = 3;
   config.iterations_per_keyframe = 1;
@@ -407,6 +427,54 @@ TEST(Mapper, DecodedFeatureLossTrainsTheLatentsAndTheHeadsLoRA) {
   FeatureAutoencoderConfig wide = ae_config;
   wide.latent_dim = 4;
   EXPECT_FALSE(mapper.set_feature_decoder(FeatureAutoencoder(wide), &why));
+}
+
+// The heads saved with a map are the online ones of its newest version, and a mapper that
+// extends the map continues them, unless they belong to other autoencoder weights.
+TEST(Mapper, PublishedHeadsAreTheOnlineOnesAndAnExtendContinuesThem) {
+  Fixture f;
+  const DecodedKeyframe d = decoded_keyframe(f);
+  MapperConfig config = small_config();
+  config.feature_dim = 3;
+  config.iterations_per_keyframe = 1;
+  std::string why;
+  Mapper latent_form(config, make_cpu_rasterizer());  // no decoder: nothing to save
+  MapperKeyframe latent_kf = d.keyframe;
+  latent_kf.feature_observation = {};
+  ASSERT_TRUE(latent_form.add_keyframe(latent_kf, nullptr, &why)) << why;
+  EXPECT_EQ(latent_form.published_heads(), nullptr);
+
+  Mapper mapper(config, make_cpu_rasterizer());
+  ASSERT_TRUE(mapper.set_feature_decoder(d.pretrained, &why)) << why;
+  ASSERT_TRUE(mapper.add_keyframe(d.keyframe, nullptr, &why)) << why;
+  ASSERT_TRUE(mapper.optimise(30, &why)) << why;
+  const std::shared_ptr<const FeatureAutoencoder> heads = mapper.published_heads();
+  ASSERT_NE(heads, nullptr);
+  EXPECT_EQ(heads->online_steps(), mapper.feature_decoder()->online_steps());
+  EXPECT_GT(heads->online_steps(), 0);
+  EXPECT_EQ(heads->parameters(), mapper.feature_decoder()->parameters());
+  EXPECT_NE(heads->parameters(), d.pretrained.parameters());  // LoRA moved
+  EXPECT_TRUE(heads->same_body(d.pretrained));
+
+  // Extend: the new mapper starts from the pretrained heads and continues the saved ones.
+  Mapper extender(config, make_cpu_rasterizer());
+  ASSERT_TRUE(extender.set_feature_decoder(d.pretrained, &why)) << why;
+  ASSERT_TRUE(extender.continue_feature_decoder(*heads, &why)) << why;
+  ASSERT_TRUE(extender.set_map(*mapper.versions().latest(), &why)) << why;
+  EXPECT_EQ(extender.feature_decoder()->parameters(), heads->parameters());
+  ASSERT_NE(extender.published_heads(), nullptr);
+  EXPECT_EQ(extender.published_heads()->parameters(), heads->parameters());
+  // Heads of other weights (another seed's body) map features elsewhere: refused, unchanged.
+  FeatureAutoencoderConfig other_config = small_autoencoder_config();
+  other_config.seed = 2;
+  const FeatureAutoencoder other(other_config);
+  EXPECT_FALSE(other.same_body(d.pretrained));
+  EXPECT_FALSE(extender.continue_feature_decoder(other, &why));
+  EXPECT_NE(why.find("other autoencoder weights"), std::string::npos) << why;
+  EXPECT_EQ(extender.feature_decoder()->parameters(), heads->parameters());
+  // Without a decoder there is nothing to continue.
+  EXPECT_TRUE(latent_form.continue_feature_decoder(*heads, &why)) << why;
+  EXPECT_EQ(latent_form.published_heads(), nullptr);
 }
 
 TEST(Mapper, RejectsBadKeyframes) {

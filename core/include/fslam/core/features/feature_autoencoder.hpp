@@ -147,6 +147,9 @@ class FeatureAutoencoder {
   // load, then check the level channels against the encoder in use.
   bool load(const std::string& path, const std::vector<FeatureLevelShape>& encoder_levels,
             std::string* why);
+  // True when `other` has this one's shapes, normalisation and body (encoder and heads without
+  // LoRA) bit for bit: then both map features to the same latent space, whatever their LoRA.
+  bool same_body(const FeatureAutoencoder& other) const;
   // False + why unless the level channels equal `encoder_levels`' channels.
   bool check_levels(const std::vector<FeatureLevelShape>& encoder_levels, std::string* why) const;
 

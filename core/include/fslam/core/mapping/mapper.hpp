@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <random>
 #include <string>
@@ -197,8 +198,17 @@ class Mapper {
   // The heads the decoded L_feat runs through (a copy; its LoRA adapters train online from here).
   // Its latent width must be the map's. Without one, L_feat is the latent form.
   bool set_feature_decoder(const FeatureAutoencoder& decoder, std::string* why);
-  // The online-adapted heads, or nullptr when L_feat is the latent form.
+  // The online-adapted heads, or nullptr when L_feat is the latent form. Mapping thread only.
   const FeatureAutoencoder* feature_decoder() const;
+  // A copy of the online heads as of the newest published map version, or null when L_feat is
+  // the latent form. Any thread: a server saves them with the map (heads.fae).
+  std::shared_ptr<const FeatureAutoencoder> published_heads() const;
+  // Extend (resume a saved map): L_feat continues through `heads`, the map's online heads, instead
+  // of the pretrained ones. Their shapes, normalisation and body must be this decoder's, since the
+  // tracker's phi makes frame latents in that latent space; false with `why` otherwise. The LoRA
+  // optimiser starts afresh, so its warm-up runs again. Without a decoder (features off or the
+  // latent L_feat) there is nothing to continue: true.
+  bool continue_feature_decoder(const FeatureAutoencoder& heads, std::string* why);
   // Mean decoded L_feat (loss_l1, before lambda_f) of the map rendered at `view` against
   // `observation` (its pixels index an image of the view's aspect), decoded by `decoder`: the
   // held-out reconstruction error of the heads. NaN + why when it cannot be measured.
@@ -274,6 +284,9 @@ class Mapper {
   std::vector<std::uint8_t> new_in_round_;  // [N] inserted by this round's keyframe
   GaussianGradients grads_;
   std::optional<FeatureAutoencoder> decoder_;  // online heads of the decoded L_feat
+  std::int64_t published_heads_steps_ = -1;    // decoder_'s online steps at the last copy
+  mutable std::mutex heads_mutex_;             // guards heads_
+  std::shared_ptr<const FeatureAutoencoder> heads_;
   std::vector<float> f_samples_, u_samples_, grad_f_samples_;  // [K, D], [K, C], [K, D] scratch
   std::optional<Eigen::Isometry3d> last_mapping_keyframe_;
 };

@@ -122,13 +122,18 @@ class SlamPipeline {
   // frame against `keyframes` (Tracker::start_in). localise: nothing reaches the mapper. extend:
   // the mapper continues `map`, numbering its versions after `version_number`, and the map's
   // keyframes are kept beside the ones this pipeline describes, renumbered -n..-1 oldest first
-  // so that they never meet the new frames' ids. False with `why` when the mapper cannot take
-  // `map` (another SH degree or feature width). Before the first frame.
+  // so that they never meet the new frames' ids; the decoded L_feat continues through `heads`,
+  // the map's online heads (null: the pretrained ones; Mapper::continue_feature_decoder). False
+  // with `why` when the mapper cannot take `map` (another SH degree or feature width) or `heads`
+  // (other autoencoder weights). Before the first frame.
   bool start_in(const GaussianMap& map, std::uint64_t version_number, std::vector<DescribedKeyframe> keyframes,
-                StartMode mode, std::string* why);
+                StartMode mode, const FeatureAutoencoder* heads, std::string* why);
   // The keyframes the tracker described so far (relocalisation's, bounded by its max_keyframes),
   // copied: saved with the map so that later sessions can relocalise in it. Any thread.
   std::vector<DescribedKeyframe> described_keyframes() const;
+  // The mapper's online heads as of its newest version (null without the decoded L_feat), copied:
+  // saved with the map so that an extend session continues them. Any thread.
+  std::shared_ptr<const FeatureAutoencoder> feature_heads() const { return mapper_.published_heads(); }
 
   // The pipeline's config, mapper.feature_dim as the features give it.
   const PipelineConfig& config() const { return config_; }
