@@ -155,11 +155,12 @@ run_tests() {
     echo "real data: $data is absent; tests that need it will be skipped"
   fi
   if [[ "$SANITIZE" == thread ]]; then
-    # The threaded server: sessions, ingest, queries and the mapping thread (docs/reliability.md).
-    log "tests under TSan (the threaded server tests, $JOBS jobs, DDS on loopback)"
+    # The threaded code: server sessions, ingest, queries and mapping threads, the pipeline's
+    # tracking / mapping / loop-closure threads, the map versions (docs/reliability.md).
+    log "tests under TSan (the threaded tests, $JOBS jobs, DDS on loopback)"
     TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1" \
       ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 1800 \
-      -R '^(Service|ServiceLimits|Server|MappingThread|SlamPipeline|MapFiles)\.'
+      -R '^(Service[A-Za-z]*|Client|SynthPipeline|LoopOnSynthRoom|LoopClosureCli|MapVersions|MapFiles|Ros2Bridge)\.'
     return
   fi
   if [[ "$SANITIZE" == address ]]; then

@@ -188,6 +188,12 @@ nlohmann::json metrics_json(const RunArgs& args, const core::Dataset& dataset,
   metrics["frames"] = {{"tracked", t.trajectory.size()}, {"lost", t.lost}, {"skipped", t.skipped},
                        {"keyframes", t.keyframes()}};
   metrics["memory"] = {{"peak_rss_mib", peak_rss_mib()}};
+  if (run.loop_closure) {
+    const core::LoopThreadStats& l = *run.loop_closure;
+    metrics["loop_closure"] = {{"keyframes", l.keyframes}, {"loops", l.loops},   {"rejected", l.rejected},
+                               {"solves", l.solves},       {"left_out", l.left_out}, {"last_solve_ms", l.last_solve_ms},
+                               {"error", l.error}};
+  }
   return metrics;
 }
 
@@ -224,6 +230,12 @@ int write_outputs(const RunArgs& args, const core::Dataset& dataset, const core:
               t.lost, run.map_keyframes, run.map_gaussians);
   std::printf("SLAM wall time %.1f s = %.2f frames/s (%d thread(s)); peak RSS %.0f MiB\n", run.slam_s,
               static_cast<double>(n) / run.slam_s, args.threads, peak_rss_mib());
+  if (run.loop_closure) {
+    const core::LoopThreadStats& l = *run.loop_closure;
+    std::printf("loop closure: %zu keyframes, %zu loop(s), %zu candidate(s) refused, %zu solve(s) (last %.0f ms)%s%s\n",
+                l.keyframes, l.loops, l.rejected, l.solves, l.last_solve_ms, l.error.empty() ? "" : "; stopped: ",
+                l.error.c_str());
+  }
   print_views("held-out frames", run.held_out);
   print_views("keyframes", run.keyframes);
   if (std::isfinite(run.feature_error_online)) {
@@ -366,6 +378,10 @@ void add_run_command(CLI::App& root, CommandList* commands) {
                              "Training renders at this fraction of the input size", &args->config);
   server::add_setting_option(app, "--insert-stride", "mapper.insert_stride",
                              "Pixel stride of new Gaussians on the training image", &args->config);
+  server::add_setting_flag(app, "--loop-closure", "loop_closure.enabled", "true",
+                           "Loop closure during tracking on its own thread, moving the map's Gaussians "
+                           "(docs/relocalisation.md)",
+                           &args->config);
   app->add_flag("--ground-truth-poses", args->gt_poses,
                 "Map and render at the ground-truth poses (tracking still runs and is scored): "
                 "map quality without tracking drift");

@@ -32,7 +32,6 @@ struct TrackArgs {
   int threads = 1;
   int relocalise_every = 0;
   bool loop_closure = false;
-  std::size_t loop_gap = core::LoopClosureConfig{}.min_frame_gap;
 };
 
 // median, p99 and mean of one stage's per-frame times.
@@ -119,6 +118,9 @@ int run_track(const TrackArgs& args) {
   if (!args.config.apply(&layered, &why)) return fail(why);
   core::PipelineConfig config = layered.pipeline;
   config.mapping = false;  // tracking alone
+  // --loop-closure runs after tracking here, with the loop_closure.* settings; not on a thread.
+  const core::LoopClosureConfig loop_config = config.loop_closure;
+  config.loop_closure.enabled = false;
   if (args.threads > 1) config.tracker.parallel = true;
   if (!config.tracker.is_valid(&why)) return fail("tracker config: " + why);
   // core has no hidden thread pools: the caller decides how many threads TBB may use.
@@ -165,8 +167,6 @@ int run_track(const TrackArgs& args) {
       return fail("ATE: " + why);
     core::LoopClosureResult loops;
     Progress loop_progress("loop closure", t.keyframes());
-    core::LoopClosureConfig loop_config;
-    loop_config.min_frame_gap = args.loop_gap;
     if (!core::close_loops(*dataset, config.tracker, loop_config, &t, &loops, &why,
                            [&](std::size_t done, std::size_t) { loop_progress.update(done); }))
       return fail("loop closure: " + why);
@@ -218,9 +218,8 @@ void add_track_command(CLI::App& root, CommandList* commands) {
   app->add_flag("--loop-closure", args->loop_closure,
                "After tracking, find revisits among the keyframes, optimise their pose graph (Ceres) "
                "and correct the trajectory (docs/relocalisation.md)");
-  app->add_option("--loop-gap", args->loop_gap,
-                  "Frames between a keyframe and an older one it may close a loop with")
-      ->capture_default_str();
+  server::add_setting_option(app, "--loop-gap", "loop_closure.min_frame_gap",
+                             "Frames between a keyframe and an older one it may close a loop with", &args->config);
   server::add_setting_option(app, "--features", "features.autoencoder_path",
                              "Feature-guided GICP (eq. feat_gicp) with these autoencoder weights",
                              &args->config);

@@ -272,6 +272,19 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   reloc.add("max_verified_translation", &Reloc::max_verified_translation);
   reloc.add("max_verified_rotation_deg", &Reloc::max_verified_rotation_deg);
   reloc.add("max_keyframes", &Reloc::max_keyframes);
+
+  using Loop = core::LoopClosureConfig;
+  const auto loop = section(f, "loop_closure", [](auto& c) -> auto& { return c.loop_closure; });
+  loop.add("enabled", &Loop::enabled);
+  loop.add("min_frame_gap", &Loop::min_frame_gap);
+  loop.add("candidates", &Loop::candidates);
+  loop.add("min_verified_inlier_ratio", &Loop::min_verified_inlier_ratio);
+  loop.add("verification_points", &Loop::verification_points);
+  loop.add("max_keyframes", &Loop::max_keyframes);
+  loop.add("odometry_translation_sigma", &Loop::odometry_translation_sigma);
+  loop.add("odometry_rotation_sigma", &Loop::odometry_rotation_sigma);
+  loop.add("loop_translation_sigma", &Loop::loop_translation_sigma);
+  loop.add("loop_rotation_sigma", &Loop::loop_rotation_sigma);
 }
 
 // The mapper's settings and the latent features' (mapper.*, features.*), in the table after the

@@ -222,6 +222,7 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_localiser(const std::string& 
   core::PipelineConfig config = config_.pipeline;
   config.mapping = false;
   config.features = {};
+  config.loop_closure.enabled = false;  // the map is fixed: nothing to correct
   config.tracker.relocalisation.enabled = true;
   auto pipeline = std::make_shared<core::SlamPipeline>(config, nullptr);
   if (!pipeline->start_in(*version, 0, *keyframes, core::StartMode::localise, nullptr, why)) return nullptr;

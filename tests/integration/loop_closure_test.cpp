@@ -59,5 +59,44 @@ TEST(LoopClosureCli, ClosesTheSyntheticLoopAndKeepsTheTrajectory) {
   EXPECT_NE(err.find("--relocalise-every"), std::string::npos) << err;
 }
 
+// During tracking (`fslam run --loop-closure`): the loop thread finds the revisit while the lap is
+// tracked and mapped, the map's Gaussians move with their keyframes, and the trajectory written is
+// the final map world's: no worse than tracking alone.
+TEST(LoopClosureCli, FslamRunClosesTheLoopDuringTrackingAndMovesTheMap) {
+  const std::string dir = test::fresh_temp_dir("loop_run").string();
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 150 --seed 3 --path loop --laps 1",
+                        &out, &err),
+            0)
+      << err;
+  ASSERT_EQ(run_command(fslam_bin() + " track --dataset " + dir + "/seq --out " + dir + "/t.txt", &out, &err), 0)
+      << out << err;
+  const double ate_tracking = number_after(out, R"(\nATE RMSE)");
+  ASSERT_GT(ate_tracking, 0.0) << out;
+  ASSERT_EQ(run_command(fslam_bin() + " run --dataset " + dir + "/seq --out " + dir + "/run --threads 2 --renders 0"
+                                      " --loop-closure --set loop_closure.min_frame_gap=100",
+                        &out, &err),
+            0)
+      << out << err;
+  const double loops = number_after(out, R"(loop closure: [0-9]+ keyframes,)");
+  EXPECT_GE(loops, 1.0) << out;
+  EXPECT_EQ(out.find("stopped:"), std::string::npos) << out;
+  const double ate = number_after(out, R"(ATE RMSE)");
+  ASSERT_GT(ate, 0.0) << out;
+  std::printf("ATE tracking alone %.4f m, fslam run with loop closure %.4f m\n", ate_tracking, ate);
+  EXPECT_LT(ate, 0.01) << out;  // metres
+  EXPECT_LE(ate, ate_tracking + 0.001) << out;
+  const double depth_l1 = number_after(out, R"(held-out frames[^\n]*depth L1)");
+  if (depth_l1 >= 0.0) {
+    EXPECT_LT(depth_l1, 5.0) << out;  // cm: the moved map still fits the frames
+  }
+  // Refused with a reason where it cannot work.
+  EXPECT_NE(run_command(fslam_bin() + " run --dataset " + dir + "/seq --out " + dir + "/bad --renders 0"
+                                      " --loop-closure --set tracker.relocalisation.enabled=false",
+                        &out, &err),
+            0);
+  EXPECT_NE((out + err).find("tracker.relocalisation.enabled"), std::string::npos) << out << err;
+}
+
 }  // namespace
 }  // namespace fslam

@@ -184,6 +184,7 @@ void Mapper::insert_one(const StoredKeyframe& kf, int u, int v, const Eigen::Vec
   const float filter = config_.filter_3d_factor * (z / fx_input) * (z / fx_input);
   map_.push_back(mean, q, log_scale, logit(config_.initial_opacity), sh->data(),
                  f.empty() ? nullptr : f.data(), filter);
+  anchor_.push_back(kf.frame_id);
 }
 
 std::size_t Mapper::insert_gaussians(const StoredKeyframe& kf, const MapperKeyframe& input, bool* at_capacity) {
@@ -489,6 +490,7 @@ std::size_t Mapper::prune(double percentile) {
   }
   map_.keep_only(keep);
   adam_.keep_only(keep);
+  keep_rows(&anchor_, 1, keep);
   reset_round();
   new_in_round_.assign(map_.size(), 0);
   return pruned_importance;
@@ -559,6 +561,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   RefinementStats s;
   StoredKeyframe kf;
   if (!store(keyframe, &kf, why)) return false;
+  keyframe_pose_[keyframe.frame_id] = keyframe.T_world_camera;  // where its Gaussians are placed
   auto t0 = std::chrono::steady_clock::now();
   s.inserted = insert_gaussians(kf, keyframe, &s.at_capacity);
   // The decoded L_feat needs the dense latent only for the new Gaussians' initial values.
@@ -592,7 +595,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
                        is_mapping_keyframe(pose_motion(*last_mapping_keyframe_, T),
                                            config_.mapping_keyframe_translation,
                                            config_.mapping_keyframe_rotation_deg);
-  if (s.mapping_keyframe) last_mapping_keyframe_ = T;
+  if (s.mapping_keyframe) last_mapping_keyframe_ = T, last_mapping_keyframe_id_ = keyframe.frame_id;
 
   t0 = std::chrono::steady_clock::now();
   reset_round();
@@ -660,12 +663,48 @@ bool Mapper::set_map(const GaussianMap& map, std::string* why) {
                          std::to_string(config_.feature_dim));
   }
   map_ = map;
+  anchor_.assign(map_.size(), -1);
   if (map_.filter_3d.size() != map_.size()) map_.filter_3d.assign(map_.size(), 0.0f);
   adam_ = make_gaussian_adam(map_, config_.learning_rates);
   reset_round();
   new_in_round_.assign(map_.size(), 0);
   publish();
   return true;
+}
+
+std::size_t Mapper::move_keyframes(const std::vector<std::pair<std::int64_t, Eigen::Isometry3d>>& T_world_keyframe) {
+  std::unordered_map<std::int64_t, Eigen::Isometry3d> delta;  // T_new T_old^-1 per keyframe that moved
+  for (const auto& [id, T_new] : T_world_keyframe) {
+    const auto it = keyframe_pose_.find(id);
+    if (it == keyframe_pose_.end()) continue;
+    const Eigen::Isometry3d D = T_new * it->second.inverse();
+    it->second = T_new;
+    if (D.translation().norm() < 1e-7 && Eigen::AngleAxisd(D.rotation()).angle() < 1e-7) continue;
+    delta[id] = D;
+  }
+  if (delta.empty()) return 0;
+  std::size_t moved = 0;
+  for (std::size_t i = 0; i < map_.size(); ++i) {
+    const auto it = delta.find(anchor_[i]);
+    if (it == delta.end()) continue;
+    const Eigen::Isometry3f D = it->second.cast<float>();
+    float* m = map_.means.data() + 3 * i;
+    const Eigen::Vector3f mean = D * Eigen::Vector3f(m[0], m[1], m[2]);
+    m[0] = mean.x(), m[1] = mean.y(), m[2] = mean.z();
+    float* r = map_.rotations.data() + 4 * i;  // w, x, y, z: Gaussian -> world
+    const Eigen::Quaternionf q = Eigen::Quaternionf(D.rotation()) * Eigen::Quaternionf(r[0], r[1], r[2], r[3]);
+    r[0] = q.w(), r[1] = q.x(), r[2] = q.y(), r[3] = q.z();
+    ++moved;
+  }
+  for (StoredKeyframe& kf : keyframes_) {
+    const auto it = delta.find(kf.frame_id);
+    if (it != delta.end()) kf.view.T_camera_world = (it->second * kf.view.T_camera_world.inverse()).inverse();
+  }
+  if (const auto it = delta.find(last_mapping_keyframe_id_); it != delta.end() && last_mapping_keyframe_) {
+    last_mapping_keyframe_ = it->second * *last_mapping_keyframe_;
+  }
+  publish();
+  return moved;
 }
 
 }  // namespace fslam::core

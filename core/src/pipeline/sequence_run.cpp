@@ -217,6 +217,8 @@ bool track_sequence(const Dataset& dataset, SlamPipeline* pipeline, const Sequen
     if (mapping_pose) out->mapping_poses.push_back(*mapping_pose);
     out->frame_index.push_back(i);
     out->keyframe.push_back(result.keyframe);
+    out->frame_id.push_back(frame.id);
+    out->map_from_odom.push_back(result.T_map_odom);
     if (callbacks.on_frame) callbacks.on_frame(i + 1, n);
   }
   out->wall_s = ms_between(start, Clock::now()) / 1000.0;
@@ -237,12 +239,22 @@ bool run_sequence(const Dataset& dataset, SlamPipeline* pipeline, const Rasteriz
   }
   if (callbacks.on_tracking_done) callbacks.on_tracking_done(out->tracking, pipeline->queued_keyframes());
   if (callbacks.wait_for_mapping && !callbacks.wait_for_mapping(why)) return false;
+  if (pipeline->config().loop_closure.enabled && callbacks.wait_for_mapping) {
+    // Loop closure is done with mapping: every frame moves with the keyframe at or before it
+    // into the final map's world (the poses as reported carry the correction of their time).
+    SequenceTracking& t = out->tracking;
+    for (std::size_t k = 0; k < t.trajectory.size(); ++k) {
+      t.trajectory[k].T_world_camera =
+          pipeline->loop_correction(t.frame_id[k]) * t.map_from_odom[k].inverse() * t.trajectory[k].T_world_camera;
+    }
+  }
   const Clock::time_point mapping_done = Clock::now();
   out->slam_s = ms_between(start, mapping_done) / 1000.0;
   if (config.refine_steps > 0 && !pipeline->refine(config.refine_steps, why, callbacks.on_refine)) return false;
   out->refine_s = ms_between(mapping_done, Clock::now()) / 1000.0;
   const Mapper& mapper = pipeline->mapper();
   out->map_gaussians = mapper.map().size();
+  out->loop_closure = pipeline->loop_closure_stats();
   out->map_keyframes = mapper.keyframe_count();
   out->optimisation_steps = mapper.total_steps();
   return evaluate_views(dataset, *pipeline, rasterizer, config, callbacks, out, why);

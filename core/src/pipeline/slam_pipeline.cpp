@@ -23,6 +23,14 @@ bool PipelineConfig::is_valid(std::string* why) const {
     if (!tracking.is_valid(why)) return fail(why, "pipeline: tracking_encoder_input: " + (why ? *why : std::string()));
   }
   if (max_queued_keyframes < 0) return fail(why, "pipeline: max_queued_keyframes must be >= 0 (0: no bound)");
+  if (loop_closure.enabled) {
+    if (!loop_closure.is_valid(why)) return false;
+    if (!tracker.relocalisation.enabled)
+      return fail(why, "loop_closure.enabled needs tracker.relocalisation.enabled (its place recognition)");
+    if (tracker.target != TrackingTarget::points)
+      return fail(why, "loop_closure.enabled needs tracker.target points (the tracker keeps its own world; "
+                       "the Gaussian target would move under it)");
+  }
   return features.is_valid(why);
 }
 
@@ -49,6 +57,13 @@ SlamPipeline::SlamPipeline(const PipelineConfig& config,
   if (features_ && config_.mapper.feature_loss == MapperConfig::FeatureLoss::decoded) {
     std::string why;
     if (!mapper_.set_feature_decoder(features_->autoencoder(), &why)) throw std::logic_error(why);
+  }
+  if (config_.loop_closure.enabled) {
+    // Wakes the mapping thread for the moves (the lock orders the wake after its predicate check).
+    loop_ = std::make_unique<LoopThread>(config_.loop_closure, config_.tracker, [this] {
+      { std::lock_guard<std::mutex> lock(mutex_); }
+      wake_.notify_all();
+    });
   }
 }
 
@@ -135,6 +150,9 @@ bool SlamPipeline::prepare_frame(RgbdFrame frame, PreparedFrame* out, std::strin
 bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* result, std::string* why,
                                   const Eigen::Isometry3d* mapping_pose) {
   const RgbdFrame& frame = prepared.frame;
+  if (loop_ && mapping_pose != nullptr) {
+    return fail(why, "loop closure moves keyframes from their tracked poses: not with mapping poses given");
+  }
   if (config_.tracker.target == TrackingTarget::gaussians && !tracker_.localising()) {
     // The newest map target, if the mapper built one since the last frame (never waited for).
     std::shared_ptr<const LocalMap> target;
@@ -158,10 +176,24 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
   }
   result->timings.features_ms = prepared.features_ms;
   const DescribedKeyframe* described = tracker_.relocaliser().newest();
-  if (result->keyframe && described != nullptr && described->id == frame.id) {
+  const bool is_described = result->keyframe && described != nullptr && described->id == frame.id;
+  if (is_described) {
     std::lock_guard<std::mutex> lock(mutex_);
     described_.push_back(*described);
     while (described_.size() > config_.tracker.relocalisation.max_keyframes) described_.pop_front();
+  }
+  const Eigen::Isometry3d T_odom = result->T_world_camera;  // the tracker's world
+  if (loop_) {
+    if (is_described) {
+      LoopKeyframe kf;
+      kf.id = kf.position = frame.id;
+      kf.T_odom_camera = T_odom;
+      kf.description = described->description;
+      kf.points = prepared.source.points;
+      loop_->add(std::move(kf));
+    }
+    result->T_map_odom = loop_->map_from_odom();
+    result->T_world_camera = result->T_map_odom * T_odom;
   }
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
   if (result->keyframe && config_.mapping) {
@@ -169,6 +201,7 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
     MapperKeyframe& kf = queued.keyframe;
     kf.frame_id = frame.id;
     kf.T_world_camera = mapping_pose != nullptr ? *mapping_pose : result->T_world_camera;
+    queued.T_odom = T_odom;
     kf.camera = frame.camera;
     kf.colour = frame.colour;
     kf.depth = frame.depth;
@@ -219,8 +252,29 @@ bool SlamPipeline::start_in(const GaussianMap& map, std::uint64_t version_number
 }
 
 std::vector<DescribedKeyframe> SlamPipeline::described_keyframes() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return {described_.begin(), described_.end()};
+  std::vector<DescribedKeyframe> out;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    out.assign(described_.begin(), described_.end());
+  }
+  // In the map's world, where the Gaussians they are saved with lie.
+  if (loop_) for (DescribedKeyframe& kf : out) kf.T_world_camera = loop_->map_pose(kf.id, kf.T_world_camera);
+  return out;
+}
+
+std::optional<LoopThreadStats> SlamPipeline::loop_closure_stats() const {
+  if (!loop_) return std::nullopt;
+  return loop_->stats();
+}
+
+Eigen::Isometry3d SlamPipeline::loop_correction(std::int64_t frame_id) const {
+  return loop_ ? loop_->correction(frame_id) : Eigen::Isometry3d::Identity();
+}
+
+void SlamPipeline::apply_loop_moves() {
+  if (!loop_) return;
+  const std::vector<std::pair<std::int64_t, Eigen::Isometry3d>> moves = loop_->take_moves();
+  if (!moves.empty()) mapper_.move_keyframes(moves);
 }
 
 void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
@@ -275,6 +329,7 @@ void SlamPipeline::finish() {
     std::lock_guard<std::mutex> lock(mutex_);
     finished_ = true;
   }
+  if (loop_) loop_->finish();
   wake_.notify_all();
 }
 
@@ -286,17 +341,21 @@ std::size_t SlamPipeline::queued_keyframes() const {
 bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>& on_keyframe,
                                std::string* why) {
   int idle_done = 0;  // idle iterations since the newest keyframe was mapped
+  // Loop closure's keyframe moves wake this thread too; it finishes once the loop thread has.
+  const auto moves_waiting = [&] { return loop_ && loop_->has_moves(); };
+  const auto loop_done = [&] { return !loop_ || loop_->done(); };
   for (;;) {
+    apply_loop_moves();  // between steps, never during one
     QueuedKeyframe queued;
     std::size_t waiting = 0;
     {
       std::unique_lock<std::mutex> lock(mutex_);
       if (config_.realtime) {
         // Idle time goes to more optimisation while nothing waits.
-        while (queue_.empty() && !finished_) {
+        while (queue_.empty() && !finished_ && !moves_waiting()) {
           if (mapper_.keyframe_count() == 0 || idle_done >= config_.max_idle_iterations ||
               config_.idle_iterations == 0) {
-            wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
+            wake_.wait(lock, [&] { return !queue_.empty() || finished_ || moves_waiting(); });
             continue;
           }
           const int step = std::min(config_.idle_iterations, config_.max_idle_iterations - idle_done);
@@ -306,9 +365,18 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
           lock.lock();
         }
       } else {
-        wake_.wait(lock, [&] { return !queue_.empty() || finished_; });
+        wake_.wait(lock, [&] { return !queue_.empty() || finished_ || moves_waiting(); });
       }
-      if (queue_.empty()) return true;  // finished and drained
+      if (queue_.empty()) {
+        if (moves_waiting()) continue;
+        if (!loop_done()) {  // finished: the loop thread works through its last keyframes
+          wake_.wait(lock, [&] { return loop_done() || moves_waiting(); });
+          continue;
+        }
+        lock.unlock();
+        apply_loop_moves();
+        return true;  // finished and drained
+      }
       queued = std::move(queue_.front());
       idle_done = 0;
       queue_.pop_front();
@@ -321,6 +389,12 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
     }
     mapper_.set_iterations_per_keyframe(iterations);
     MapperKeyframe& kf = queued.keyframe;
+    // Where loop closure puts the keyframe now (it may have moved since it was tracked).
+    if (loop_) {
+      const Eigen::Isometry3d T = loop_->map_pose(kf.frame_id, queued.T_odom);
+      if (!kf.source_world.empty()) kf.source_world = transformed(kf.source_world, T * kf.T_world_camera.inverse());
+      kf.T_world_camera = T;
+    }
     KeyframeReport report;
     report.frame_id = kf.frame_id;
     if (features_) {

@@ -477,6 +477,50 @@ TEST(Mapper, PublishedHeadsAreTheOnlineOnesAndAnExtendContinuesThem) {
   EXPECT_EQ(latent_form.published_heads(), nullptr);
 }
 
+// Loop closure moves a keyframe: the Gaussians it inserted move rigidly with it, the others stay.
+TEST(Mapper, MovingAKeyframeMovesTheGaussiansItAnchors) {
+  Fixture f;
+  MapperConfig config = small_config();
+  config.iterations_per_keyframe = 0;  // nothing but the move changes a mean
+  Mapper mapper(config, make_cpu_rasterizer());
+  std::string why;
+  ASSERT_TRUE(mapper.add_keyframe(f.keyframe(0), nullptr, &why)) << why;
+  const std::size_t first = mapper.map().size();
+  const MapperKeyframe second = f.keyframe(30);
+  ASSERT_TRUE(mapper.add_keyframe(second, nullptr, &why)) << why;
+  const std::size_t n = mapper.map().size();
+  ASSERT_GT(n, first) << "keyframe 30 must add Gaussians";
+  const GaussianMap before = mapper.map();
+  const std::uint64_t version = mapper.versions().version_number();
+
+  Eigen::Isometry3d D = Eigen::Isometry3d::Identity();
+  D.linear() = Eigen::AngleAxisd(2.0 * M_PI / 180.0, Eigen::Vector3d(0.3, 1.0, -0.2).normalized()).toRotationMatrix();
+  D.translation() = Eigen::Vector3d(0.03, -0.01, 0.02);
+  EXPECT_EQ(mapper.move_keyframes({{30, D * second.T_world_camera}, {7, Eigen::Isometry3d::Identity()}}), n - first);
+  EXPECT_GT(mapper.versions().version_number(), version);
+  const GaussianMap& after = mapper.map();
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d m0(before.means[3 * i], before.means[3 * i + 1], before.means[3 * i + 2]);
+    const Eigen::Vector3d m1(after.means[3 * i], after.means[3 * i + 1], after.means[3 * i + 2]);
+    const Eigen::Quaterniond q0(before.rotations[4 * i], before.rotations[4 * i + 1], before.rotations[4 * i + 2],
+                                before.rotations[4 * i + 3]);
+    const Eigen::Quaterniond q1(after.rotations[4 * i], after.rotations[4 * i + 1], after.rotations[4 * i + 2],
+                                after.rotations[4 * i + 3]);
+    if (i < first) {
+      ASSERT_EQ(m1, m0) << "Gaussian " << i << " of keyframe 0 moved";
+      ASSERT_TRUE(q1.coeffs() == q0.coeffs());
+    } else {
+      ASSERT_LT((m1 - D * m0).norm(), 1e-5) << "Gaussian " << i;  // metres
+      ASSERT_LT(q1.angularDistance(Eigen::Quaterniond(D.rotation()) * q0), 1e-5) << "Gaussian " << i;
+    }
+  }
+  // The same pose again, or a keyframe the mapper never took, moves nothing.
+  EXPECT_EQ(mapper.move_keyframes({{30, D * second.T_world_camera}}), 0u);
+  EXPECT_EQ(mapper.move_keyframes({{12345, D}}), 0u);
+  // Optimising after the move still works from the moved keyframe's view.
+  ASSERT_TRUE(mapper.optimise(5, &why)) << why;
+}
+
 TEST(Mapper, RejectsBadKeyframes) {
   Fixture f;
   Mapper mapper(small_config(), make_cpu_rasterizer());

@@ -13,6 +13,8 @@
 #include <optional>
 #include <random>
 #include <string>
+#include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -214,8 +216,15 @@ class Mapper {
   // held-out reconstruction error of the heads. NaN + why when it cannot be measured.
   double decoded_feature_error(const RenderView& view, const FeatureObservation& observation,
                                const FeatureAutoencoder& decoder, std::string* why) const;
-  // Replaces the map (resume from a saved map); keyframes are kept.
+  // Replaces the map (resume from a saved map); keyframes are kept. Its Gaussians have no
+  // anchor keyframe: loop closure never moves them.
   bool set_map(const GaussianMap& map, std::string* why);
+  // Loop closure (docs/relocalisation.md): keyframe `id` now lies at T_world_camera. The
+  // Gaussians it inserted (their anchor) move rigidly with it, mean and rotation by
+  // T_new T_old^-1 (view-dependent SH are not rotated: corrections are small), and so does its
+  // stored view. Ids the mapper never took are skipped. Publishes a version when anything moved;
+  // returns how many Gaussians moved. Mapping thread, between steps.
+  std::size_t move_keyframes(const std::vector<std::pair<std::int64_t, Eigen::Isometry3d>>& T_world_keyframe);
 
   const GaussianMap& map() const { return map_; }
   MapVersions& versions() { return versions_; }
@@ -289,6 +298,11 @@ class Mapper {
   std::shared_ptr<const FeatureAutoencoder> heads_;
   std::vector<float> f_samples_, u_samples_, grad_f_samples_;  // [K, D], [K, C], [K, D] scratch
   std::optional<Eigen::Isometry3d> last_mapping_keyframe_;
+  std::int64_t last_mapping_keyframe_id_ = 0;
+  // Per Gaussian, the frame id of the keyframe that inserted it (-1: set_map's); and per
+  // keyframe id ever added, its pose as the mapper last placed it (move_keyframes).
+  std::vector<std::int64_t> anchor_;
+  std::unordered_map<std::int64_t, Eigen::Isometry3d> keyframe_pose_;
 };
 
 }  // namespace fslam::core

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -35,6 +36,10 @@ struct SequenceTracking {
   Trajectory trajectory;                    // T_world_camera per tracked frame
   std::vector<std::size_t> frame_index;     // the dataset position of each entry
   std::vector<bool> keyframe;               // whether each entry became a keyframe
+  std::vector<std::int64_t> frame_id;       // each entry's frame id
+  // Loop closure's correction in each entry's pose as tracked (TrackingResult::T_map_odom);
+  // run_sequence replaces the poses by the final map world's once mapping is done.
+  std::vector<Eigen::Isometry3d> map_from_odom;
   std::vector<Eigen::Isometry3d> mapping_poses;  // with ground_truth_poses: where it was mapped
   std::vector<double> track_ms;             // wall time per frame after the first, ms
   std::vector<double> features_ms;          // the latent of frames after the first (when > 0), ms
@@ -58,6 +63,7 @@ struct SequenceRunResult {
   double feature_error_pretrained = std::numeric_limits<double>::quiet_NaN();
   double feature_error_online = std::numeric_limits<double>::quiet_NaN();
   std::int64_t lora_steps = 0;  // online LoRA steps the heads took
+  std::optional<LoopThreadStats> loop_closure;  // with loop closure on
   // The map is the pipeline's: pipeline->mapper().map().
 };
 

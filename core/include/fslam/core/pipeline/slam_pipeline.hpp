@@ -9,12 +9,14 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "fslam/core/features/latent_features.hpp"
 #include "fslam/core/geometry/rgbd_frame.hpp"
 #include "fslam/core/mapping/mapper.hpp"
+#include "fslam/core/pipeline/loop_thread.hpp"
 #include "fslam/core/render/rasterizer.hpp"
 #include "fslam/core/tracking/tracker.hpp"
 
@@ -49,6 +51,10 @@ struct PipelineConfig {
   int tracking_encoder_input = 0;
   // Off: tracking alone (`fslam track`): keyframes are not handed to a mapper. Not a setting.
   bool mapping = true;
+  // Loop closure during tracking, on its own thread (loop_thread.hpp); off by default
+  // (docs/relocalisation.md has the measurements). Needs tracker.relocalisation.enabled (place
+  // recognition) and tracker.target points.
+  LoopClosureConfig loop_closure;
   bool is_valid(std::string* why = nullptr) const;
 };
 
@@ -135,6 +141,14 @@ class SlamPipeline {
   // saved with the map so that an extend session continues them. Any thread.
   std::shared_ptr<const FeatureAutoencoder> feature_heads() const { return mapper_.published_heads(); }
 
+  // Loop closure (config().loop_closure.enabled): what its thread did so far; nullopt when off.
+  std::optional<LoopThreadStats> loop_closure_stats() const;
+  // The correction loop closure applies to frame `frame_id`'s tracked pose (that of the keyframe
+  // at or before it; identity when off). Once run_mapping returned it is final: the pose a frame
+  // was reported at, T_world_camera = result.T_map_odom T_odom, becomes
+  // loop_correction(id) T_map_odom^-1 T_world_camera in the final map's world.
+  Eigen::Isometry3d loop_correction(std::int64_t frame_id) const;
+
   // The pipeline's config, mapper.feature_dim as the features give it.
   const PipelineConfig& config() const { return config_; }
   Tracker& tracker() { return tracker_; }
@@ -156,6 +170,7 @@ class SlamPipeline {
   struct QueuedKeyframe {
     MapperKeyframe keyframe;
     std::shared_ptr<FeaturePyramid> pyramid;
+    Eigen::Isometry3d T_odom = Eigen::Isometry3d::Identity();  // as tracked (loop closure)
   };
   class PyramidPool;
   // The tracking encoder's pyramid is also the mapper's (tracking_encoder_input 0 or the same).
@@ -183,6 +198,9 @@ class SlamPipeline {
   std::deque<DescribedKeyframe> described_;  // guarded by mutex_; copies of the tracker's
   void bound_queue_locked();
   bool finished_ = false;
+  // Mapping thread: the keyframe poses loop closure moved since the last call, to the mapper.
+  void apply_loop_moves();
+  std::unique_ptr<LoopThread> loop_;  // last: joined before the members its callback uses go
 };
 
 }  // namespace fslam::core

@@ -93,6 +93,9 @@ struct TrackingResult {
   std::string message;          // why a frame was lost or recovered, empty otherwise
   std::optional<RelocalisationAttempt> relocalisation;  // when the frame tried one
   bool wide_baseline = false;   // the registration from the ORB guess was kept
+  // Loop closure's correction included in T_world_camera (SlamPipeline; the tracker's own pose
+  // is T_map_odom^-1 T_world_camera). Identity without loop closure.
+  Eigen::Isometry3d T_map_odom = Eigen::Isometry3d::Identity();
 };
 
 // A frame's source set of eq. gicp_sets, ready to register: what Tracker::preprocess makes
