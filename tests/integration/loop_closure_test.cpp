@@ -21,14 +21,22 @@ double number_after(const std::string& text, const std::string& pattern) {
   return std::regex_search(text, m, std::regex(pattern + R"(\s*([0-9.]+))")) ? std::stod(m[1]) : -1.0;
 }
 
-TEST(LoopClosureCli, ClosesTheSyntheticLoopAndKeepsTheTrajectory) {
-  const std::string dir = test::fresh_temp_dir("loop").string();
+// One lap in 150 frames (about 2.4 degrees per frame), frame 149 one step before the start,
+// synthesised into DIR/seq of a fresh temporary DIR, which is returned.
+std::string synthetic_lap(const std::string& name) {
+  const std::string dir = test::fresh_temp_dir(name).string();
   std::string out, err;
-  // One lap in 150 frames (about 2.4 degrees per frame): frame 149 is one step before the start.
-  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 150 --seed 3 --path loop --laps 1",
+  EXPECT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 150 --seed 3 --path loop --laps 1",
                         &out, &err),
             0)
       << err;
+  return dir;
+}
+
+TEST(LoopClosureCli, ClosesTheSyntheticLoopAndKeepsTheTrajectory) {
+  const std::string dir = synthetic_lap("loop");
+  ASSERT_FALSE(HasFailure());
+  std::string out, err;
   ASSERT_EQ(run_command(fslam_bin() + " track --dataset " + dir + "/seq --out " + dir + "/t.txt --loop-closure"
                                       " --loop-gap 100",
                         &out, &err),
@@ -63,12 +71,9 @@ TEST(LoopClosureCli, ClosesTheSyntheticLoopAndKeepsTheTrajectory) {
 // tracked and mapped, the map's Gaussians move with their keyframes, and the trajectory written is
 // the final map world's: no worse than tracking alone.
 TEST(LoopClosureCli, FslamRunClosesTheLoopDuringTrackingAndMovesTheMap) {
-  const std::string dir = test::fresh_temp_dir("loop_run").string();
+  const std::string dir = synthetic_lap("loop_run");
+  ASSERT_FALSE(HasFailure());
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 150 --seed 3 --path loop --laps 1",
-                        &out, &err),
-            0)
-      << err;
   ASSERT_EQ(run_command(fslam_bin() + " track --dataset " + dir + "/seq --out " + dir + "/t.txt", &out, &err), 0)
       << out << err;
   const double ate_tracking = number_after(out, R"(\nATE RMSE)");

@@ -85,7 +85,6 @@ void LoopThread::run() {
       keyframe = std::move(queue_.front());
       queue_.pop_front();
     }
-    const std::int64_t id = keyframe.id;
     LoopEvent event;
     std::string why;
     std::vector<std::pair<std::int64_t, Eigen::Isometry3d>> poses;
@@ -94,15 +93,15 @@ void LoopThread::run() {
     bool ok = false;
     {
       std::lock_guard<std::mutex> lock(closer_mutex_);
+      const std::size_t before = closer_.size();
       ok = closer_.add(std::move(keyframe), &event, &why);
-      if (ok) {
+      if (ok && closer_.size() > before) {  // added (not past max_keyframes)
         // After a solve every keyframe may have moved; otherwise only the new one is placed.
         poses = closer_.corrected_poses();
-        if (!event.solved && !poses.empty()) poses.erase(poses.begin(), poses.end() - 1);
-        newest = closer_.newest_correction();
-        graph_size = closer_.size();
-        if (!poses.empty() && poses.back().first != id) poses.clear();  // past max_keyframes: not added
+        if (!event.solved) poses.erase(poses.begin(), poses.end() - 1);
       }
+      newest = closer_.newest_correction();
+      graph_size = closer_.size();
     }
     {
       std::lock_guard<std::mutex> lock(mutex_);
