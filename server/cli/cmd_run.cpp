@@ -72,6 +72,18 @@ nlohmann::json timing_json(const std::vector<double>& samples) {
           {"max_ms", s.max}};
 }
 
+// Median and 10th / 90th percentiles of the finite samples (none: count 0).
+nlohmann::json spread_json(const std::vector<double>& samples, double unit) {
+  std::vector<double> finite;
+  for (double v : samples)
+    if (std::isfinite(v)) finite.push_back(v * unit);
+  if (finite.empty()) return {{"count", 0}};
+  return {{"count", finite.size()},
+          {"p10", percentile(finite, 0.10)},
+          {"median", percentile(finite, 0.5)},
+          {"p90", percentile(finite, 0.90)}};
+}
+
 nlohmann::json views_json(const core::ViewScores& scores) {
   const core::ViewScore m = scores.mean();
   return {{"frames", scores.views.size()},
@@ -185,6 +197,14 @@ nlohmann::json metrics_json(const RunArgs& args, const core::Dataset& dataset,
                        {"tracking_features_per_frame", timing_json(t.features_ms)},
                        {"mapping_per_keyframe", timing_json(mapping.keyframe_ms)},
                        {"features_per_keyframe", timing_json(mapping.features_ms)}};
+  metrics["registration"] = {{"inlier_ratio", spread_json(t.inlier_ratio, 1.0)},
+                             {"rms_residual_mm", spread_json(t.rms_residual_m, 1000.0)},
+                             {"mahalanobis", spread_json(t.mahalanobis, 1.0)},
+                             {"feature_weight", spread_json(t.feature_weight, 1.0)},
+                             {"note", "per frame at the registered pose, means over its inliers; mahalanobis: "
+                                      "d^T C^-1 d (near-planar covariances: the distance off the "
+                                      "target's surfaces); feature_weight: eq. feat_dist's "
+                                      "similarity (1: identical features)"}};
   metrics["frames"] = {{"tracked", t.trajectory.size()}, {"lost", t.lost}, {"skipped", t.skipped},
                        {"keyframes", t.keyframes()}};
   metrics["memory"] = {{"peak_rss_mib", peak_rss_mib()}};

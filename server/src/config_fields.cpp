@@ -102,6 +102,10 @@ const EnumNames<core::MapperConfig::InsertFrom> kInsertFrom = {
     {core::MapperConfig::InsertFrom::lattice, "lattice"}, {core::MapperConfig::InsertFrom::source, "source"}};
 const EnumNames<core::MapperConfig::FeatureLoss> kFeatureLoss = {
     {core::MapperConfig::FeatureLoss::decoded, "decoded"}, {core::MapperConfig::FeatureLoss::latent, "latent"}};
+const EnumNames<core::MapTargetCovariance> kMapTargetCovariances = {
+    {core::MapTargetCovariance::disc, "disc"},
+    {core::MapTargetCovariance::shape, "shape"},
+    {core::MapTargetCovariance::neighbours, "neighbours"}};
 const EnumNames<core::RobustKernel> kRobustKernels = {{core::RobustKernel::none, "none"},
                                                       {core::RobustKernel::huber, "huber"},
                                                       {core::RobustKernel::cauchy, "cauchy"}};
@@ -227,7 +231,7 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
                                   [](auto& c) -> auto& { return c.tracker.map_target; });
   map_target.add("min_opacity", &MapTarget::min_opacity);
   map_target.add("min_point_distance", &MapTarget::min_point_distance);
-  map_target.add("unit_discs", &MapTarget::unit_discs);
+  map_target.add("covariance", &MapTarget::covariance, kMapTargetCovariances);
 
   using Gicp = core::GicpConfig;
   const auto gicp = section(f, "tracker.gicp", [](auto& c) -> auto& { return c.tracker.gicp; });

@@ -10,8 +10,9 @@ Usage: tests/benchmarks/tracking_ablation.sh [options]
 
 Runs `fslam run` (mapping on, as fast as it can, --threads N) once per row and stretch and prints
 one table: ATE RMSE (cm), median tracking ms per frame, held-out PSNR (dB), frames/s, map size,
-and the held-out decoded-feature error of the heads before / after online LoRA where L_feat is
-decoded. Rows (--rows picks some, comma-separated):
+the held-out decoded-feature error of the heads before / after online LoRA where L_feat is
+decoded, and the median over frames of the registration's mean feature similarity (eq. feat_dist
+at the solution; 1: the frame's features equal their matched targets'). Rows (--rows picks some, comma-separated):
   points           point map target, features off (the default without weights)
   points-feat      point map target, features on (the default with weights)
   gauss            Gaussian map target (mapper.insert_from=source), features off, alpha on
@@ -19,6 +20,9 @@ decoded. Rows (--rows picks some, comma-separated):
   gauss-feat       Gaussian map target, features on, alpha on (the paper's formulation)
   gauss-feat-noalpha  Gaussian map target, features on, alpha off
   gauss-feat-latent   as gauss-feat with the latent L_feat (mapper.feature_loss=latent)
+  gauss-nbr        as gauss, target covariances from the neighbouring means
+                   (tracker.map_target.covariance=neighbours) instead of each Gaussian's disc
+  gauss-feat-nbr   as gauss-feat, covariances from the neighbouring means
 Stretches (--stretches picks some): rk0-599, rk0-299, rk300-599 (7-Scenes redkitchen), png50
 (redkitchen frames 150-199, PNG colour), synth (a `fslam synth` room, 300 frames, Kinect noise,
 seed --synth-seed).
@@ -39,7 +43,7 @@ USAGE
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 export CYCLONEDDS_URI="file://${REPO}/configs/dds/loopback.xml"  # house rule, though no DDS here
-ROWS="points,points-feat,gauss,gauss-noalpha,gauss-feat,gauss-feat-noalpha,gauss-feat-latent"
+ROWS="points,points-feat,gauss,gauss-noalpha,gauss-feat,gauss-feat-noalpha,gauss-feat-latent,gauss-nbr,gauss-feat-nbr"
 STRETCHES="rk0-599,rk0-299,rk300-599,png50,synth"
 SYNTH_SEED=21
 THREADS=2
@@ -79,6 +83,8 @@ row_args() {
     gauss-feat) echo "${gauss[@]}" --features "${WEIGHTS}" ;;
     gauss-feat-noalpha) echo "${gauss[@]}" --features "${WEIGHTS}" --set tracker.gicp.use_opacity=false ;;
     gauss-feat-latent) echo "${gauss[@]}" --features "${WEIGHTS}" --set mapper.feature_loss=latent ;;
+    gauss-nbr) echo "${gauss[@]}" --set tracker.map_target.covariance=neighbours ;;
+    gauss-feat-nbr) echo "${gauss[@]}" --features "${WEIGHTS}" --set tracker.map_target.covariance=neighbours ;;
     *) echo "unknown row: $1" >&2; return 1 ;;
   esac
 }
@@ -105,8 +111,8 @@ fi
 SUMMARY="${OUT}/summary.txt"
 {
   echo "# $(date -u +%FT%TZ) commit $(git -C "${REPO}" rev-parse --short HEAD)$(git -C "${REPO}" diff --quiet || echo +dirty) threads ${THREADS} host $(hostname)"
-  echo "| stretch | row | ATE cm | tracking ms p50 | held-out PSNR dB | frames/s | Gaussians | decoded error pretrained -> online |"
-  echo "|---|---|---|---|---|---|---|---|"
+  echo "| stretch | row | ATE cm | tracking ms p50 | held-out PSNR dB | frames/s | Gaussians | decoded error pretrained -> online | feature similarity p50 |"
+  echo "|---|---|---|---|---|---|---|---|---|"
 } | tee "${SUMMARY}"
 IFS=',' read -r -a stretch_list <<<"${STRETCHES}"
 IFS=',' read -r -a row_list <<<"${ROWS}"
@@ -130,8 +136,9 @@ fps = m["timing"]["frames_per_second"]
 dec = m.get("decoded_features")
 dec_text = f"{dec['held_out_error_pretrained']:.4f} -> {dec['held_out_error_online']:.4f}" if dec else "-"
 fmt = lambda v, f: (f % v) if isinstance(v, (int, float)) else "-"
+similarity = m.get("registration", {}).get("feature_weight", {}).get("median")
 print(f"| {sys.argv[2]} | {sys.argv[3]} | {fmt(ate * 100 if ate is not None else None, '%.2f')} | "
-      f"{fmt(track, '%.1f')} | {fmt(psnr, '%.2f')} | {fps:.2f} | {m['map']['gaussians']} | {dec_text} |")
+      f"{fmt(track, '%.1f')} | {fmt(psnr, '%.2f')} | {fps:.2f} | {m['map']['gaussians']} | {dec_text} | {fmt(similarity, '%.3f')} |")
 PY
   done
 done

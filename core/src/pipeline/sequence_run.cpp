@@ -207,6 +207,10 @@ bool track_sequence(const Dataset& dataset, SlamPipeline* pipeline, const Sequen
       out->track_ms.push_back(ms_between(t0, Clock::now()));
       if (result.timings.features_ms > 0) out->features_ms.push_back(result.timings.features_ms);
       out->timings.push_back(result.timings);
+      out->inlier_ratio.push_back(result.gicp.inlier_ratio);
+      out->rms_residual_m.push_back(result.gicp.rms_residual);
+      out->mahalanobis.push_back(result.gicp.mean_mahalanobis);
+      out->feature_weight.push_back(result.gicp.mean_feature_weight);
     }
     out->wide_baseline += result.wide_baseline;
     if (result.state == TrackingState::lost || result.state == TrackingState::recovered) {

@@ -45,6 +45,8 @@ LinearSystem& LinearSystem::operator+=(const LinearSystem& other) {
   b += other.b;
   cost += other.cost;
   squared_distance_sum += other.squared_distance_sum;
+  feature_weight_sum += other.feature_weight_sum;
+  mahalanobis_sum += other.mahalanobis_sum;
   inliers += other.inliers;
   return *this;
 }

@@ -63,28 +63,31 @@ GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& 
     math::quat_to_rotmat(q, R);
     Eigen::Vector3f variance = axis_variance;
     const Eigen::Map<const Eigen::Matrix<float, 3, 3, Eigen::RowMajor>> Rg(R);
-    if (config.unit_discs) {
+    if (config.covariance == MapTargetCovariance::disc) {
       // The surface the Gaussian stands for, as the source's: a unit disc across its thinnest
       // axis (eigenvalues epsilon, 1, 1), in-plane elongation dropped.
       int thinnest = 0;
       for (int k = 1; k < 3; ++k)
         if (variance[k] < variance[thinnest]) thinnest = k;
       for (int k = 0; k < 3; ++k) variance[k] = k == thinnest ? epsilon : 1.0f;
-    } else {
+    } else if (config.covariance == MapTargetCovariance::shape) {
       // The Gaussian's shape, scale-free like the source's unit discs: largest axis 1, the
       // thinnest no thinner than plane_epsilon.
       const float largest = std::max(variance.maxCoeff(), 1e-12f);
       for (int k = 0; k < 3; ++k) variance[k] = std::max(variance[k] / largest, epsilon);
     }
-    const float noise = preprocess.depth_noise.covariance_scale((mean - centre_world).norm());
     out.means.push_back(mean);
-    out.covariances.push_back(noise * (Rg * variance.asDiagonal() * Rg.transpose()));
+    // neighbours: set below from the target's means, once all are known.
+    out.covariances.push_back(Rg * variance.asDiagonal() * Rg.transpose());
     out.opacities.push_back(opacity);
     if (D > 0) {
       const float* f = map.features.data() + i * static_cast<std::size_t>(D);
       out.features.insert(out.features.end(), f, f + D);
     }
   }
+  if (config.covariance == MapTargetCovariance::neighbours) estimate_covariances_knn(preprocess.covariance, &out);
+  for (std::size_t k = 0; k < out.size(); ++k)
+    out.covariances[k] *= preprocess.depth_noise.covariance_scale((out.means[k] - centre_world).norm());
   return out;
 }
 

@@ -438,7 +438,49 @@ TEST_P(GicpBackend, FeatureDistanceIsMeasuredInUnitsOfTheSpread) {
     ASSERT_EQ(with.inliers, source.size());
     EXPECT_LT((with.H - std::exp(-2.0) * without.H).norm(), 1e-9 * without.H.norm())
         << "offset " << c.offset << ", spread " << c.spread;
+    // The similarity is reported, per inlier, without changing what it weighs.
+    EXPECT_NEAR(with.feature_weight_sum / static_cast<double>(with.inliers), std::exp(-2.0), 1e-9);
+    EXPECT_EQ(without.feature_weight_sum, 0.0);
+    EXPECT_EQ(with.mahalanobis_sum, without.mahalanobis_sum);
   }
+}
+
+// The registration's quality figures: a source on its own target lies on the target's surfaces
+// (Mahalanobis ~0) with identical features (similarity 1); the same source moved 5 mm along +z
+// has each point 5 mm off a target point, and the mean d^T C^-1 d is the mean of that over the
+// correspondences' C, computed here directly.
+TEST_P(GicpBackend, ReportsMeanFeatureSimilarityAndMahalanobis) {
+  GaussianPoints target_points = room_points(3000, 71);
+  set_features(&target_points, 2, 0);
+  const KdTreeTarget target = make_target(target_points);
+  GicpConfig config = scene_config();
+  config.use_features = true;
+  const GicpResult at_rest =
+      run_align(GetParam(), target_points, target, Eigen::Isometry3d::Identity(), config);
+  EXPECT_NEAR(at_rest.mean_feature_weight, 1.0, 1e-12);
+  EXPECT_NEAR(at_rest.mean_mahalanobis, 0.0, 1e-6);
+  config.use_features = false;
+  const GicpResult without =
+      run_align(GetParam(), target_points, target, Eigen::Isometry3d::Identity(), config);
+  EXPECT_TRUE(std::isnan(without.mean_feature_weight)) << "no features, no similarity";
+  Eigen::Isometry3d shifted = Eigen::Isometry3d::Identity();
+  shifted.translation() = Eigen::Vector3d(0.0, 0.0, 0.005);  // metres
+  const LinearSystem moved = run_linearize(GetParam(), target_points, target, shifted, config);
+  ASSERT_GT(moved.inliers, 0u);
+  double expected = 0.0;
+  std::size_t inliers = 0;
+  for (std::size_t i = 0; i < target_points.size(); ++i) {
+    const Eigen::Vector3f q = target_points.means[i] + Eigen::Vector3f(0.0f, 0.0f, 0.005f);
+    const TargetPoint* match = target.nearest(q, config.max_correspondence_distance, nullptr);
+    if (match == nullptr) continue;
+    const Eigen::Matrix3d C = (match->covariance + target_points.covariances[i]).cast<double>();
+    const Eigen::Vector3d d = (q - match->mean).cast<double>();
+    expected += d.dot(C.inverse() * d);
+    ++inliers;
+  }
+  ASSERT_EQ(inliers, moved.inliers);
+  EXPECT_GT(expected, 0.0);
+  EXPECT_NEAR(moved.mahalanobis_sum, expected, 1e-4 * expected);
 }
 
 TEST_P(GicpBackend, LowOpacityTargetPointsLoseInfluence) {
@@ -629,6 +671,8 @@ TEST(GicpLinearSystem, AddsEveryField) {
   a.b.setConstant(1.0);
   a.cost = 2.0;
   a.squared_distance_sum = 3.0;
+  a.feature_weight_sum = 5.0;
+  a.mahalanobis_sum = 6.0;
   a.inliers = 4;
   b = a;
   b += a;
@@ -636,6 +680,8 @@ TEST(GicpLinearSystem, AddsEveryField) {
   EXPECT_EQ(b.b, Vector6d::Constant(2.0));
   EXPECT_EQ(b.cost, 4.0);
   EXPECT_EQ(b.squared_distance_sum, 6.0);
+  EXPECT_EQ(b.feature_weight_sum, 10.0);
+  EXPECT_EQ(b.mahalanobis_sum, 12.0);
   EXPECT_EQ(b.inliers, 8u);
 }
 

@@ -62,7 +62,7 @@ TEST(MapTarget, CovarianceIsAUnitDiscAcrossTheGaussiansThinnestAxis) {
   preprocess.depth_noise.enabled = false;
   for (bool unit : {true, false}) {
     MapTargetConfig config;
-    config.unit_discs = unit;
+    config.covariance = unit ? MapTargetCovariance::disc : MapTargetCovariance::shape;
     const GaussianPoints target = map_target_points(map, Eigen::Vector3f::Zero(), 2.0f, config, preprocess);
     ASSERT_EQ(target.size(), 1u);
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> eig(target.covariances[0]);
@@ -74,6 +74,36 @@ TEST(MapTarget, CovarianceIsAUnitDiscAcrossTheGaussiansThinnestAxis) {
     EXPECT_NEAR(eig.eigenvalues()(2), 1.0f, 1e-5f);
     // In-plane: equal with unit discs; the 3:1 elongation (9:1 in variance) kept without.
     EXPECT_NEAR(eig.eigenvalues()(1), unit ? 1.0f : 1.0f / 9.0f, 1e-4f) << "unit discs " << unit;
+  }
+}
+
+// covariance: neighbours ignores each Gaussian's own shape: Gaussians on the plane z = 1 whose
+// thinnest axes all lie in the plane get the plane's disc (normal z) from where their means lie,
+// and an isolated Gaussian (fewer neighbours than min_neighbours) is no target.
+TEST(MapTarget, NeighbourCovarianceIsThePlaneOfTheMeansNotTheGaussiansShape) {
+  GaussianMap map;
+  map.feature_dim = 0;
+  const float q[4] = {1.0f, 0.0f, 0.0f, 0.0f};
+  for (int y = 0; y < 5; ++y)
+    for (int x = 0; x < 5; ++x)  // thinnest axis local x: in the plane, the wrong normal
+      add(&map, {0.01f * static_cast<float>(x), 0.01f * static_cast<float>(y), 1.0f}, q,
+          {0.001f, 0.01f, 0.01f}, 0.9f, 0.0f);
+  add(&map, {1.0f, 1.0f, 1.0f}, q, {0.001f, 0.01f, 0.01f}, 0.9f, 0.0f);  // 1.4 m from the rest
+  PreprocessConfig preprocess;
+  preprocess.depth_noise.enabled = false;
+  MapTargetConfig config;
+  const GaussianPoints discs = map_target_points(map, Eigen::Vector3f::Zero(), 3.0f, config, preprocess);
+  ASSERT_EQ(discs.size(), 26u);
+  config.covariance = MapTargetCovariance::neighbours;
+  const GaussianPoints target = map_target_points(map, Eigen::Vector3f::Zero(), 3.0f, config, preprocess);
+  ASSERT_EQ(target.size(), 25u);
+  for (std::size_t i = 0; i < target.size(); ++i) {
+    EXPECT_LT(target.means[i].x(), 0.5f) << "the isolated Gaussian was kept";
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> eig(target.covariances[i]);
+    EXPECT_NEAR(std::abs(eig.eigenvectors().col(0).z()), 1.0f, 1e-4f) << i;
+    EXPECT_NEAR(eig.eigenvalues()(0), preprocess.covariance.plane_epsilon, 1e-6f) << i;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> own(discs.covariances[i]);
+    EXPECT_NEAR(std::abs(own.eigenvectors().col(0).x()), 1.0f, 1e-4f) << "disc normal is the thinnest axis";
   }
 }
 

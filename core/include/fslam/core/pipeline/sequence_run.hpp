@@ -44,6 +44,10 @@ struct SequenceTracking {
   std::vector<double> track_ms;             // wall time per frame after the first, ms
   std::vector<double> features_ms;          // the latent of frames after the first (when > 0), ms
   std::vector<TrackingTimings> timings;     // per frame after the first (the first initialises)
+  // Registration quality per frame after the first (GicpResult): inlier ratio, RMS residual in
+  // metres, mean Mahalanobis term, and the mean feature similarity of eq. feat_dist (NaN
+  // without features).
+  std::vector<double> inlier_ratio, rms_residual_m, mahalanobis, feature_weight;
   std::vector<double> load_ms;              // decoding each frame (on the prefetch thread), ms
   std::size_t lost = 0, recovered = 0, skipped = 0;
   std::size_t wide_baseline = 0;            // frames registered from the ORB guess (tracker.hpp)

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstddef>
+#include <limits>
 #include <string>
 
 #include <Eigen/Core>
@@ -51,6 +52,8 @@ struct LinearSystem {
   Vector6d b = Vector6d::Zero();
   double cost = 0.0;
   double squared_distance_sum = 0.0;  // sum of |d|^2 over inliers, metres^2 (for the RMS)
+  double feature_weight_sum = 0.0;    // sum of eq. feat_dist's similarity over inliers
+  double mahalanobis_sum = 0.0;       // sum of d^T C^-1 d over inliers (before weights and kernel)
   std::size_t inliers = 0;
   LinearSystem& operator+=(const LinearSystem& other);
 };
@@ -67,6 +70,13 @@ struct GicpResult {
   Matrix6d H = Matrix6d::Zero();    // Gauss-Newton Hessian at the solution ([rho; phi] order)
   double condition_number = 0.0;    // lambda_max / lambda_min of H (inf if singular)
   bool features_used = false;       // the feature term of eq. feat_gicp was active
+  // Mean over inliers of eq. feat_dist's similarity exp(-gamma d_f / s) at the solution: how
+  // alike the frame's features and their matched targets' are (1: identical). NaN without features.
+  double mean_feature_weight = std::numeric_limits<double>::quiet_NaN();
+  // Mean over inliers of d^T C^-1 d at the solution, unitless: with near-planar covariances it
+  // is dominated by the residual along the surfaces' normals, so it says how far the frame's
+  // points lie off the target's surfaces (0 without inliers).
+  double mean_mahalanobis = 0.0;
 };
 
 // Any target: `const TargetPoint* nearest(const Eigen::Vector3f& q, float max_distance,

@@ -152,7 +152,9 @@ inline void accumulate_gicp_factor(const GaussianPoints& source, std::size_t i,
     // the target's is taken equal to the source's (same surface, a nearby view).
     const double spread = source.has_feature_spread() ? source.feature_spread[i] : 0.0;
     const double scale = 2.0 * spread + ctx.feature_noise;
-    weight *= std::exp(-ctx.feature_gamma * static_cast<double>(feature_distance) / scale);
+    const double similarity = std::exp(-ctx.feature_gamma * static_cast<double>(feature_distance) / scale);
+    weight *= similarity;
+    system->feature_weight_sum += similarity;
   }
 
   const Eigen::Matrix<double, 6, 3> JtM = J.transpose() * M;
@@ -161,6 +163,7 @@ inline void accumulate_gicp_factor(const GaussianPoints& source, std::size_t i,
   system->b.noalias() += (w * JtM) * residual;
   system->cost += weight * robust.cost;
   system->squared_distance_sum += residual.squaredNorm();
+  system->mahalanobis_sum += m;
   ++system->inliers;
 }
 
@@ -267,6 +270,10 @@ GicpResult align(const GaussianPoints& source, const Target& target,
                             : std::sqrt(final_system.squared_distance_sum /
                                         static_cast<double>(final_system.inliers));
   result.cost = final_system.cost;
+  if (final_system.inliers > 0)
+    result.mean_mahalanobis = final_system.mahalanobis_sum / static_cast<double>(final_system.inliers);
+  if (result.features_used && final_system.inliers > 0)
+    result.mean_feature_weight = final_system.feature_weight_sum / static_cast<double>(final_system.inliers);
   result.H = final_system.H;
   result.condition_number = gicp_detail::condition_number(final_system.H);
   if (final_system.inliers == 0) result.converged = false;

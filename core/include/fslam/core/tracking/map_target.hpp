@@ -13,18 +13,28 @@
 
 namespace fslam::core {
 
+// What a target Gaussian's covariance is made from (all scale-free like the source's unit discs,
+// then scaled by the depth-noise model).
+enum class MapTargetCovariance {
+  disc,        // a unit disc across the Gaussian's thinnest axis (in-plane elongation dropped)
+  shape,       // the Gaussian's normalised shape (largest axis 1, in-plane elongation kept)
+  neighbours,  // the plane of its k nearest target means, as the frame's (CovarianceConfig):
+               // the Gaussian's own shape is not used, only where the map's means lie
+};
+
 struct MapTargetConfig {
   float min_opacity = 0.1f;          // effective opacity below which a Gaussian is no target
   float min_point_distance = 0.015f; // metres; thinning of the target (LocalMap), densest first
-  bool unit_discs = true;            // covariance: unit disc across the thinnest axis; false:
-                                     // the Gaussian's normalised shape (in-plane elongation kept)
+  MapTargetCovariance covariance = MapTargetCovariance::disc;
   bool is_valid(std::string* why = nullptr) const;
 };
 
 // The Gaussians of `map` within `radius` of `centre_world` as GICP target points, most opaque
-// first: mean; covariance R diag(s^2 + filter) R^T of scale and rotation, normalised as the
-// frame's source covariances are (largest axis 1, thinnest floored at plane_epsilon, times the
-// sensor's depth noise at its distance from `centre_world`); opacity sigmoid(logit) with the 3D
+// first: mean; covariance as config.covariance says (from R diag(s^2 + filter) R^T of scale and
+// rotation, or from the neighbouring means with preprocess.covariance's k-NN, which drops
+// Gaussians with too few neighbours), normalised as the frame's source covariances are (largest
+// axis 1, thinnest floored at plane_epsilon, times the sensor's depth noise at its distance from
+// `centre_world`); opacity sigmoid(logit) with the 3D
 // filter's compensation; the distilled latent as its features (when the map has them).
 GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& centre_world,
                                  float radius, const MapTargetConfig& config,
