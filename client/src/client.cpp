@@ -522,6 +522,8 @@ void Client::listen() {
       update.text_queries = st.text_queries;
       update.mapping_queue = st.mapping_queue;
       update.keyframes_left_out = st.keyframes_left_out;
+      update.loop_closure = st.loop_closure;
+      update.loops_closed = st.loops_closed;
       std::lock_guard<std::mutex> lock(callback_mutex_);
       if (status_callback_) status_callback_(update);
     });

@@ -92,6 +92,7 @@ int run_status(const StatusArgs& args) {
                 static_cast<double>(s.resident_bytes) / (1024.0 * 1024.0));
     if (!s.last_skip_reason.empty()) std::printf("  last skip: %s\n", s.last_skip_reason.c_str());
     if (!s.last_drop_reason.empty()) std::printf("  last drop: %s\n", s.last_drop_reason.c_str());
+    if (s.loop_closure) std::printf("  loop closure: %u loop(s) closed\n", s.loops_closed);
     if (s.keyframes_left_out > 0) {
       std::printf("  mapping behind: %u keyframes waiting, %llu left out of the map (max_queued_keyframes)\n",
                   s.mapping_queue, static_cast<unsigned long long>(s.keyframes_left_out));

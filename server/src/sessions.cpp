@@ -1,6 +1,7 @@
 #include "sessions.hpp"
 
 #include <cstdio>
+#include <optional>
 #include <sstream>
 #include <utility>
 
@@ -447,6 +448,10 @@ std::vector<SessionReport> Sessions::reports() const {
     st.map_ms_p99 = p(s->map_ms, 0.99);
     st.mapping_queue = static_cast<std::uint32_t>(s->pipeline->queued_keyframes());
     st.keyframes_left_out = s->pipeline->keyframes_left_out();
+    if (const std::optional<core::LoopThreadStats> loops = s->pipeline->loop_closure_stats()) {
+      st.loop_closure = true;
+      st.loops_closed = static_cast<std::uint32_t>(loops->loops);
+    }
     reports.push_back(std::move(r));
   }
   return reports;

@@ -26,6 +26,7 @@
 #include "fslam/client/client.hpp"
 #include "fslam/proto/types.h"
 #include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/eval/ate.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 #include "fslam/server/backend_factory.hpp"
 
@@ -962,6 +963,108 @@ TEST(ServiceResend, ALoadResentAfterItsAnswerIsAnsweredAgainAndRunsOnce) {
   int loads = 0;
   for (std::string line; std::getline(log, line);) loads += line.find("loaded map 'twice'") != std::string::npos;
   EXPECT_EQ(loads, 1) << "the resent load must not run again";
+}
+
+// Loop closure in a streaming session (issue 20): a server with loop_closure.enabled tracks a
+// synthetic lap streamed through the client library; its status reports the loop it closed, the
+// poses it sent back are within a centimetre of the truth, and closing the session keeps a map
+// that renders the lap's start where the camera saw it.
+TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("service_loop").string();
+  const std::string prefix = "svcloop" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 150 --seed 3 --path loop --laps 1",
+                        &out, &err),
+            0)
+      << err;
+  const pid_t server = start_server("--prefix " + prefix +
+                                        " --set loop_closure.enabled=true --set loop_closure.min_frame_gap=100",
+                                    dir + "/server.log");
+  ASSERT_GT(server, 0) << "fslam-server did not start";
+  auto dataset = core::open_dataset(dir + "/seq", core::DatasetOptions{}, &why);
+  ASSERT_TRUE(dataset) << why;
+  const std::size_t n = dataset->size();
+  // Declared before the client: its listener thread calls the callbacks until it is destroyed.
+  std::mutex mutex;
+  std::map<std::uint64_t, client::PoseUpdate> poses;
+  bool loop_closure_reported = false;
+  std::uint32_t loops = 0;
+  client::Client c(options_for(prefix));
+  c.on_pose([&](const client::PoseUpdate& p) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (p.session == "lap") poses[p.frame_id] = p;
+  });
+  c.on_status([&](const client::StatusUpdate& s) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (s.session != "lap") return;
+    loop_closure_reported = loop_closure_reported || s.loop_closure;
+    loops = std::max(loops, s.loops_closed);
+  });
+  const auto answered = [&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return poses.size();
+  };
+  client::SessionOptions queue;
+  queue.policy = client::FramePolicy::queue;
+  ASSERT_TRUE(c.open_session("lap", "lap", 10000, &why, queue)) << why;
+  for (std::size_t i = 0; i < n; ++i) {
+    core::RgbdFrame frame;
+    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
+    cv::Mat depth_mm;
+    frame.depth.convertTo(depth_mm, CV_16UC1, 1000.0);
+    // At most 16 frames unanswered (the server queues 64).
+    for (int k = 0; k < 600 && answered() + 16 < i; ++k) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    ASSERT_TRUE(c.push_frame("lap", frame_input(frame, i, depth_mm), &why, 10000)) << why;
+  }
+  // The loop thread verifies and solves after the frames are tracked: wait for its report.
+  for (int k = 0; k < 1200; ++k) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (poses.size() >= n && loops >= 1) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    ASSERT_EQ(poses.size(), n) << "every frame gets a pose";
+    EXPECT_TRUE(loop_closure_reported) << "the session's status says it closes loops";
+    EXPECT_GE(loops, 1u) << "the lap's return to its start is found";
+  }
+  core::Trajectory estimate;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& [id, p] : poses) {
+      ASSERT_FALSE(p.skipped) << "queue policy: frame " << id << " skipped";
+      core::StampedPose pose;
+      pose.timestamp = p.timestamp;
+      pose.T_world_camera.linear() =
+          Eigen::Quaterniond(p.rotation[3], p.rotation[0], p.rotation[1], p.rotation[2]).toRotationMatrix();
+      pose.T_world_camera.translation() = Eigen::Vector3d(p.translation[0], p.translation[1], p.translation[2]);
+      estimate.push_back(pose);
+    }
+  }
+  core::AteResult ate;
+  ASSERT_TRUE(core::compute_ate(dataset->ground_truth(), estimate, core::AteConfig{}, &ate, &why)) << why;
+  EXPECT_LT(ate.rmse, 0.01) << "metres";
+  ASSERT_TRUE(c.close_session("lap", 60000, &why)) << why;
+  // The map after close renders the first frame's view where the sensor saw surfaces.
+  core::RgbdFrame first;
+  ASSERT_TRUE(dataset->load(0, &first, &why)) << why;
+  client::RenderQuery q;
+  q.map_name = "lap";
+  q.from_frame = true;
+  q.frame_id = 0;
+  q.channels = client::kDepth;
+  q.depth_scale = 1000.0f;
+  client::RenderOutput render;
+  ASSERT_TRUE(c.render(q, &render, 30000, &why)) << why;
+  const client::RenderedImage* depth = channel(render, client::kDepth);
+  ASSERT_NE(depth, nullptr);
+  double coverage = 0.0;
+  EXPECT_LT(mean_depth_error(*depth, q.depth_scale, first.depth, &coverage), 0.03) << "metres";
+  EXPECT_GT(coverage, 0.8);
+  stop_process(server);
 }
 
 }  // namespace

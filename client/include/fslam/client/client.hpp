@@ -106,6 +106,8 @@ struct StatusUpdate {
   bool streaming = false;               // false: a map no session streams into (session empty)
   std::uint64_t map_version = 0, frames_tracked = 0;
   bool text_queries = false;            // the server answers text prompts (grounding model)
+  bool loop_closure = false;            // the session closes loops (loop_closure.enabled)
+  std::uint32_t loops_closed = 0;       // loops found, verified and solved into its map
 };
 
 // Where a query looks at a map from: a pose, or the tracked pose of a frame; and a camera.
