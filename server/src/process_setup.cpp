@@ -3,11 +3,12 @@
 #include <malloc.h>
 
 #include "fslam/core/compute/cpu_level.hpp"
+#include "fslam/core/compute/thread_limit.hpp"
 
 namespace fslam::server {
 
 bool prepare_process(std::string* why) {
-  if (!core::cpu_runs_this_build(why)) return false;
+  if (!core::cpu_runs_this_build(why) || !core::limit_library_threads_from_environment(why)) return false;
   mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's maximum on 64-bit
   mallopt(M_TRIM_THRESHOLD, 256 << 20);
   return true;
