@@ -52,7 +52,7 @@ MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low
     std::unique_ptr<LowPriorityWorkers> observer;
     if (low_priority) observer = std::make_unique<LowPriorityWorkers>(arena);
     const auto mapped = [&](const core::KeyframeReport& report) {
-      if (lifted_.exchange(false)) set_thread_idle(true);  // the starved keyframe is mapped
+      if (lifted_.exchange(0) > 0) set_thread_idle(true);  // the starved keyframe is mapped
       if (on_keyframe) on_keyframe(report);
     };
     std::string why;
@@ -73,20 +73,21 @@ void MappingThread::guard_starvation(const core::SlamPipeline* pipeline) {
   };
   // Starved: a keyframe waited the whole window and the mapping thread ran for under
   // kStarvedCpuShare of it (slow mapping of a big keyframe is not starvation).
-  constexpr double kStarvedCpuShare = 0.05;
   Clock::time_point since = Clock::now();
   double cpu_since = cpu_seconds();
   std::unique_lock<std::mutex> lock(mutex_);
   while (!stop_.wait_for(lock, std::chrono::milliseconds(250), [&] { return stopping_; })) {
     const double window = std::chrono::duration<double>(Clock::now() - since).count();
-    if (lifted_ || pipeline->queued_keyframes() == 0) {
+    if (pipeline->queued_keyframes() == 0) {
       since = Clock::now();
       cpu_since = cpu_seconds();
     } else if (window >= kMappingStarvationSeconds) {
       const double share = (cpu_seconds() - cpu_since) / window;
-      if (share < kStarvedCpuShare && tid_ != 0) {
-        set_policy(tid_, false, kStarvedMappingNice);  // first: the next keyframe mapped lowers it again
-        lifted_ = true;
+      const int step = lifted_.load();
+      if (share < kStarvedCpuShare && step < 2 && tid_ != 0) {
+        // First the step, then the policy: the next keyframe mapped lowers it again.
+        lifted_ = step + 1;
+        set_policy(tid_, false, step == 0 ? kStarvedMappingNice : 0);
       }
       since = Clock::now();
       cpu_since = cpu_seconds();

@@ -19,10 +19,13 @@ namespace fslam::server {
 // SCHED_IDLE policy: on a shared machine tracking, decoding and the client come first and mapping
 // gets only the time nothing else wants. (Nice 10 still took ~10 % of a core from every thread it
 // shared one with, which doubled frame-to-pose latency with features on; docs/benchmarks.md.)
-// So that an overloaded machine still grows its maps, a mapping thread that got under 5 % of a
-// core for kMappingStarvationSeconds while a keyframe waited is lifted to kStarvedMappingNice
-// until it has mapped the next keyframe.
+// So that an overloaded machine still grows its maps, a mapping thread that got under
+// kStarvedCpuShare of a core for kMappingStarvationSeconds while a keyframe waited is lifted one
+// step, to kStarvedMappingNice; still starved there for another window (several sessions with
+// features on fill every core at nice 0), one more, to nice 0, where it gets a fair share; it
+// goes back to SCHED_IDLE once it has mapped the next keyframe.
 constexpr double kMappingStarvationSeconds = 2.0;
+constexpr double kStarvedCpuShare = 0.05;
 constexpr int kStarvedMappingNice = 10;
 
 class MappingThread {
@@ -46,7 +49,7 @@ class MappingThread {
   std::thread thread_;
   std::thread guard_;                     // low_priority only
   std::atomic<pid_t> tid_{0};             // the mapping thread's Linux thread id
-  std::atomic<bool> lifted_{false};       // the guard raised the mapping thread
+  std::atomic<int> lifted_{0};            // steps the guard raised the mapping thread (0-2)
   std::mutex mutex_;
   std::condition_variable stop_;
   bool stopping_ = false;  // guarded by mutex_
