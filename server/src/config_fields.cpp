@@ -276,6 +276,8 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   reloc.add("max_verified_translation", &Reloc::max_verified_translation);
   reloc.add("max_verified_rotation_deg", &Reloc::max_verified_rotation_deg);
   reloc.add("max_keyframes", &Reloc::max_keyframes);
+  reloc.add("revisit_translation", &Reloc::revisit_translation);
+  reloc.add("revisit_rotation_deg", &Reloc::revisit_rotation_deg);
 
   using Loop = core::LoopClosureConfig;
   const auto loop = section(f, "loop_closure", [](auto& c) -> auto& { return c.loop_closure; });

@@ -42,10 +42,18 @@ GaussianPoints subsample_points(const GaussianPoints& points, std::size_t limit)
   return out;
 }
 
+// The closer's place index keeps every keyframe: its ids are node indices, and a revisit is
+// exactly what it looks for.
+RelocaliserConfig every_keyframe(RelocaliserConfig config) {
+  config.revisit_translation = 0.0;
+  config.revisit_rotation_deg = 0.0;
+  return config;
+}
+
 }  // namespace
 
 LoopCloser::LoopCloser(const LoopClosureConfig& config, const TrackerConfig& tracker_config)
-    : config_(config), tracker_config_(tracker_config), places_(tracker_config.relocalisation) {}
+    : config_(config), tracker_config_(tracker_config), places_(every_keyframe(tracker_config.relocalisation)) {}
 
 std::size_t LoopCloser::index_at_or_before(std::int64_t id) const {
   const auto it = std::upper_bound(nodes_.begin(), nodes_.end(), id,

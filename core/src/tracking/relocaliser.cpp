@@ -109,6 +109,8 @@ bool RelocaliserConfig::is_valid(std::string* why) const {
   if (!(max_verified_translation > 0.0) || !(max_verified_rotation_deg > 0.0))
     return fail(why, "relocalisation.max_verified_translation and max_verified_rotation_deg must be > 0");
   if (max_keyframes < 1) return fail(why, "relocalisation.max_keyframes must be >= 1");
+  if (!(revisit_translation >= 0.0) || !(revisit_rotation_deg >= 0.0))
+    return fail(why, "relocalisation.revisit_translation and revisit_rotation_deg must be >= 0 (0: keep every keyframe)");
   return true;
 }
 
@@ -181,9 +183,25 @@ void Relocaliser::add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world
   const Eigen::Vector3f t = T_world_camera.translation().cast<float>();
   e.points_world.reserve(e.description.points.size());
   for (const Eigen::Vector3f& p : e.description.points) e.points_world.push_back(R * p + t);
+  index_.reset();  // a copy of this relocaliser may still share the old one
+  if (config_.revisit_translation > 0.0 && config_.revisit_rotation_deg > 0.0) {
+    // The described keyframe this one revisits, if any (the nearest in threshold units), makes
+    // way for it: the newest description of a pose is kept, at the back like every new one.
+    const double max_angle = config_.revisit_rotation_deg * M_PI / 180.0;
+    auto revisited = keyframes_.end();
+    double best = std::numeric_limits<double>::infinity();
+    for (auto it = keyframes_.begin(); it != keyframes_.end(); ++it) {
+      const double distance = (it->T_world_camera.translation() - T_world_camera.translation()).norm();
+      const double angle =
+          std::abs(Eigen::AngleAxisd(it->T_world_camera.linear().transpose() * T_world_camera.linear()).angle());
+      if (distance >= config_.revisit_translation || angle >= max_angle) continue;
+      const double score = distance / config_.revisit_translation + angle / max_angle;
+      if (score < best) best = score, revisited = it;
+    }
+    if (revisited != keyframes_.end()) keyframes_.erase(revisited);
+  }
   keyframes_.push_back(std::move(e));
   while (keyframes_.size() > config_.max_keyframes) keyframes_.pop_front();
-  index_.reset();  // a copy of this relocaliser may still share the old one
 }
 
 const Relocaliser::Entry* Relocaliser::find(std::int64_t id) const {

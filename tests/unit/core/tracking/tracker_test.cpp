@@ -438,6 +438,42 @@ TEST(Relocaliser, NearestKeyframeWeighsDistanceAndTurn) {
   EXPECT_EQ(relocaliser.nearest_keyframe(query), std::optional<std::int64_t>(9)) << "the turn outweighs 20 cm";
 }
 
+// A camera going back and forth over the same poses: each keyframe within 2 cm and 2 degrees of
+// a described one replaces it (the newest description of a pose kept), so the count grows with
+// the poses covered, not with time; with the thresholds at 0 every keyframe is kept.
+TEST(Relocaliser, ARevisitingKeyframeReplacesTheDescribedOne) {
+  const auto keyframe = [](std::int64_t id, double x, double yaw_deg) {
+    DescribedKeyframe kf;
+    kf.id = id;
+    kf.T_world_camera.linear() = Eigen::AngleAxisd(yaw_deg * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    kf.T_world_camera.translation() = Eigen::Vector3d(x, 0.0, 0.0);
+    kf.description.descriptors = cv::Mat(1, 32, CV_8UC1, cv::Scalar(7));
+    kf.description.points = {Eigen::Vector3f(0.0f, 0.0f, 1.0f)};
+    kf.description.global = {1.0f};
+    return kf;
+  };
+  Relocaliser thinned{RelocaliserConfig{}};
+  RelocaliserConfig every;
+  every.revisit_translation = 0.0;
+  Relocaliser all{every};
+  std::int64_t id = 0;
+  for (int lap = 0; lap < 5; ++lap) {
+    for (int k = 0; k < 10; ++k) {  // 10 poses 5 cm apart, each visited once a lap (+-5 mm)
+      const double x = 0.05 * k + (lap % 2 == 0 ? 0.005 : -0.005);
+      thinned.add_keyframe(keyframe(id, x, 0.5 * lap));
+      all.add_keyframe(keyframe(id, x, 0.5 * lap));
+      ++id;
+    }
+  }
+  EXPECT_EQ(all.size(), 50u);
+  ASSERT_EQ(thinned.size(), 10u) << "one description per pose covered";
+  // The newest visit of each pose is the one kept; a turn past 2 degrees is a new pose.
+  const std::vector<DescribedKeyframe> kept = thinned.keyframes();
+  for (const DescribedKeyframe& kf : kept) EXPECT_GE(kf.id, 40) << "an older visit was kept";
+  thinned.add_keyframe(keyframe(id++, 0.0, 10.0));
+  EXPECT_EQ(thinned.size(), 11u);
+}
+
 TEST(RelocaliserConfig, RefusesBadSettings) {
   std::string why;
   EXPECT_TRUE(RelocaliserConfig{}.is_valid(&why)) << why;

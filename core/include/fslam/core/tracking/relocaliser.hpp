@@ -44,6 +44,11 @@ struct RelocaliserConfig {
   double max_verified_translation = 0.10;  // metres
   double max_verified_rotation_deg = 10.0;
   std::size_t max_keyframes = 2000;  // described keyframes kept (oldest dropped)
+  // A keyframe within both of a described keyframe's pose replaces it (the nearest), so that the
+  // descriptions grow with the poses covered, not with time (a camera going back and forth);
+  // 0: keep every keyframe. As the mapper's stored keyframes (mapper.revisit_*).
+  double revisit_translation = 0.02;  // metres
+  double revisit_rotation_deg = 2.0;
   bool is_valid(std::string* why = nullptr) const;
 };
 
