@@ -179,6 +179,12 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
   const bool is_described = result->keyframe && described != nullptr && described->id == frame.id;
   if (is_described) {
     std::lock_guard<std::mutex> lock(mutex_);
+    // The copy follows the relocaliser's set: a revisiting keyframe replaces the one it revisits.
+    if (const std::optional<std::int64_t> replaced = tracker_.relocaliser().newest_replaced()) {
+      const auto it = std::find_if(described_.begin(), described_.end(),
+                                   [&](const DescribedKeyframe& kf) { return kf.id == *replaced; });
+      if (it != described_.end()) described_.erase(it);
+    }
     described_.push_back(*described);
     while (described_.size() > config_.tracker.relocalisation.max_keyframes) described_.pop_front();
   }

@@ -173,6 +173,7 @@ Relocaliser::Relocaliser(const RelocaliserConfig& config) : config_(config) {}
 void Relocaliser::clear() {
   keyframes_.clear();
   index_.reset();
+  newest_replaced_.reset();
 }
 
 void Relocaliser::add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world_camera,
@@ -184,6 +185,7 @@ void Relocaliser::add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world
   e.points_world.reserve(e.description.points.size());
   for (const Eigen::Vector3f& p : e.description.points) e.points_world.push_back(R * p + t);
   index_.reset();  // a copy of this relocaliser may still share the old one
+  newest_replaced_.reset();
   if (config_.revisit_translation > 0.0 && config_.revisit_rotation_deg > 0.0) {
     // The described keyframe this one revisits, if any (the nearest in threshold units), makes
     // way for it: the newest description of a pose is kept, at the back like every new one.
@@ -198,7 +200,10 @@ void Relocaliser::add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world
       const double score = distance / config_.revisit_translation + angle / max_angle;
       if (score < best) best = score, revisited = it;
     }
-    if (revisited != keyframes_.end()) keyframes_.erase(revisited);
+    if (revisited != keyframes_.end()) {
+      newest_replaced_ = revisited->id;
+      keyframes_.erase(revisited);
+    }
   }
   keyframes_.push_back(std::move(e));
   while (keyframes_.size() > config_.max_keyframes) keyframes_.pop_front();

@@ -470,8 +470,12 @@ TEST(Relocaliser, ARevisitingKeyframeReplacesTheDescribedOne) {
   // The newest visit of each pose is the one kept; a turn past 2 degrees is a new pose.
   const std::vector<DescribedKeyframe> kept = thinned.keyframes();
   for (const DescribedKeyframe& kf : kept) EXPECT_GE(kf.id, 40) << "an older visit was kept";
+  // It says which one it replaced (SlamPipeline's copy of the descriptions follows it).
+  thinned.add_keyframe(keyframe(id++, 0.051, 2.0));
+  EXPECT_EQ(thinned.newest_replaced(), std::optional<std::int64_t>(41));
   thinned.add_keyframe(keyframe(id++, 0.0, 10.0));
   EXPECT_EQ(thinned.size(), 11u);
+  EXPECT_FALSE(thinned.newest_replaced().has_value());
 }
 
 TEST(RelocaliserConfig, RefusesBadSettings) {

@@ -107,6 +107,8 @@ class Relocaliser {
   std::vector<DescribedKeyframe> keyframes() const { return {keyframes_.begin(), keyframes_.end()}; }
   // The keyframe added last (null when none is kept).
   const DescribedKeyframe* newest() const { return keyframes_.empty() ? nullptr : &keyframes_.back(); }
+  // The id of the described keyframe the newest one replaced (revisit_*), if it replaced one.
+  std::optional<std::int64_t> newest_replaced() const { return newest_replaced_; }
   // Place recognition: up to `count` keyframe ids, most similar first, skipping those whose id
   // is in [exclude_from, exclude_to] (a loop closer excludes the recent ones).
   std::vector<std::int64_t> similar_keyframes(const FrameDescription& query, std::size_t count,
@@ -140,6 +142,7 @@ class Relocaliser {
 
   RelocaliserConfig config_;
   std::deque<Entry> keyframes_;
+  std::optional<std::int64_t> newest_replaced_;
   mutable std::shared_ptr<Index> index_;
 };
 
