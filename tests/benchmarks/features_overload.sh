@@ -32,11 +32,8 @@ PREFIX="fover$$"
 cleanup() { stop_started; [[ -n "$OUT" ]] && mkdir -p "$OUT" && cp "$WORK"/*.json "$WORK"/*.log "$OUT"/ 2>/dev/null; rm -rf "$WORK"; }
 trap cleanup EXIT
 "$BIN/fslam" synth --out "$WORK/seq" --frames 60 --seed 7 >/dev/null 2>&1 || { echo "synth failed"; exit 1; }
-"$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" --set "features.autoencoder_path=$WEIGHTS" \
-  >"$WORK/server.log" 2>&1 &
-SERVER=$!
-PIDS+=("$SERVER")
-wait_for_line "$WORK/server.log" "serving on" || { echo "the server did not start:"; tail "$WORK/server.log"; exit 1; }
+start_server "$WORK/server.log" 0 --set "features.autoencoder_path=$WEIGHTS" ||
+  { echo "the server did not start:"; tail "$WORK/server.log"; exit 1; }
 echo "# $(date -u +%FT%TZ) commit $(git -C "$REPO" rev-parse --short HEAD) host $(hostname) cores $(nproc), $LOAD_S s"
 timeout $((LOAD_S + 150)) "$BIN/fslam_load" "$PREFIX" "$WORK/seq" "$LOAD_S" 4 --rate 30 --encoding jpeg \
   --queriers 2 --query-rate 2 >"$WORK/report.json" 2>"$WORK/load.log" || { echo "the load tool failed:"; tail "$WORK/load.log"; exit 1; }

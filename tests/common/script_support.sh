@@ -17,14 +17,17 @@ stop_started() {
   for pid in "${PIDS[@]}"; do wait "$pid" 2>/dev/null; done
 }
 
-# start_server LOG [PAUSE_MS]: fslam-server on $PREFIX with its maps in $WORK/maps ($BIN, $PREFIX
-# and $WORK are the script's), each step of a save's swap widened to PAUSE_MS (map_files.cpp
-# fault_pause; 0 = none); $SERVER is its PID, recorded in PIDS; true once it serves.
+# start_server LOG [PAUSE_MS [SERVER ARGS...]]: fslam-server on $PREFIX with its maps in $WORK/maps
+# ($BIN, $PREFIX and $WORK are the script's), each step of a save's swap widened to PAUSE_MS
+# (map_files.cpp fault_pause; 0 = none), with any further arguments; $SERVER is its PID, recorded
+# in PIDS; true once it serves.
 start_server() {
-  FSLAM_FAULT_SAVE_PAUSE_MS="${2:-0}" "$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" >"$1" 2>&1 &
+  local log="$1" pause="${2:-0}"
+  shift $(($# >= 2 ? 2 : 1))
+  FSLAM_FAULT_SAVE_PAUSE_MS="$pause" "$BIN/fslam-server" --prefix "$PREFIX" --map-dir "$WORK/maps" "$@" >"$log" 2>&1 &
   SERVER=$!
   PIDS+=("$SERVER")
-  wait_for_line "$1" "serving on"
+  wait_for_line "$log" "serving on"
 }
 
 # stop_within PID SECONDS: SIGTERM, then wait up to SECONDS for PID to exit; prints the

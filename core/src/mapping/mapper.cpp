@@ -566,21 +566,13 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
   s.inserted = insert_gaussians(kf, keyframe, &s.at_capacity);
   // The decoded L_feat needs the dense latent only for the new Gaussians' initial values.
   if (decoded_features(kf)) kf.feature_target = PlanarImage();
-  if (config_.revisit_translation > 0.0 && config_.revisit_rotation_deg > 0.0) {
-    // The stored keyframe this one revisits, if any (the nearest in threshold units).
-    double best = 2.0;
-    auto revisited = keyframes_.end();
-    for (auto it = keyframes_.begin(); it != keyframes_.end(); ++it) {
-      const PoseMotion m = pose_motion(it->view.T_camera_world.inverse(), keyframe.T_world_camera);
-      if (m.translation >= config_.revisit_translation ||
-          m.rotation >= config_.revisit_rotation_deg * M_PI / 180.0) continue;
-      const double score = motion_in_thresholds(m, config_.revisit_translation, config_.revisit_rotation_deg);
-      if (score < best) best = score, revisited = it;
-    }
-    if (revisited != keyframes_.end()) {
-      keyframes_.erase(revisited);  // the newest stays last (sample_keyframe)
-      s.replaced_keyframe = true;
-    }
+  // The stored keyframe this one revisits, if any, makes way for it.
+  const auto revisited =
+      find_revisited(keyframes_.begin(), keyframes_.end(), keyframe.T_world_camera, config_.revisit_translation,
+                     config_.revisit_rotation_deg, [](const StoredKeyframe& k) { return k.view.T_camera_world.inverse(); });
+  if (revisited != keyframes_.end()) {
+    keyframes_.erase(revisited);  // the newest stays last (sample_keyframe)
+    s.replaced_keyframe = true;
   }
   if (keyframes_.size() >= config_.max_stored_keyframes) {
     drop_most_redundant_keyframe();

@@ -186,24 +186,14 @@ void Relocaliser::add_keyframe(std::int64_t id, const Eigen::Isometry3d& T_world
   for (const Eigen::Vector3f& p : e.description.points) e.points_world.push_back(R * p + t);
   index_.reset();  // a copy of this relocaliser may still share the old one
   newest_replaced_.reset();
-  if (config_.revisit_translation > 0.0 && config_.revisit_rotation_deg > 0.0) {
-    // The described keyframe this one revisits, if any (the nearest in threshold units), makes
-    // way for it: the newest description of a pose is kept, at the back like every new one.
-    const double max_angle = config_.revisit_rotation_deg * M_PI / 180.0;
-    auto revisited = keyframes_.end();
-    double best = std::numeric_limits<double>::infinity();
-    for (auto it = keyframes_.begin(); it != keyframes_.end(); ++it) {
-      const double distance = (it->T_world_camera.translation() - T_world_camera.translation()).norm();
-      const double angle =
-          std::abs(Eigen::AngleAxisd(it->T_world_camera.linear().transpose() * T_world_camera.linear()).angle());
-      if (distance >= config_.revisit_translation || angle >= max_angle) continue;
-      const double score = distance / config_.revisit_translation + angle / max_angle;
-      if (score < best) best = score, revisited = it;
-    }
-    if (revisited != keyframes_.end()) {
-      newest_replaced_ = revisited->id;
-      keyframes_.erase(revisited);
-    }
+  // The described keyframe this one revisits, if any, makes way for it: the newest description
+  // of a pose is kept, at the back like every new one.
+  const auto revisited = find_revisited(keyframes_.begin(), keyframes_.end(), T_world_camera,
+                                        config_.revisit_translation, config_.revisit_rotation_deg,
+                                        [](const Entry& k) { return k.T_world_camera; });
+  if (revisited != keyframes_.end()) {
+    newest_replaced_ = revisited->id;
+    keyframes_.erase(revisited);
   }
   keyframes_.push_back(std::move(e));
   while (keyframes_.size() > config_.max_keyframes) keyframes_.pop_front();

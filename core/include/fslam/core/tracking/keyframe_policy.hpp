@@ -5,6 +5,7 @@
 // ||t_c - t_k|| and the rotation angle(R_c R_k^T).
 #pragma once
 
+#include <cmath>
 #include <string>
 
 #include <Eigen/Geometry>
@@ -40,5 +41,25 @@ bool is_keyframe(const KeyframeConfig& config, const PoseMotion& motion, double 
 // A mapping keyframe: moved at least `min_translation` metres or `min_rotation_deg` degrees from
 // the last mapping keyframe (MapperConfig::mapping_keyframe_translation, _rotation_deg).
 bool is_mapping_keyframe(const PoseMotion& motion, double min_translation, double min_rotation_deg);
+
+// A revisit (the mapper's stored keyframes, MapperConfig::revisit_*; relocalisation's described
+// ones, RelocaliserConfig::revisit_*): T_world_current within both `translation` (metres) and
+// `rotation_deg` of a kept keyframe's pose. The kept keyframe in [begin, end) it revisits, the
+// nearest in threshold units (motion_in_thresholds), or `end` when none is (or a threshold is 0).
+// pose_of(keyframe) gives a keyframe's camera-to-world pose.
+template <typename It, typename PoseOf>
+It find_revisited(It begin, It end, const Eigen::Isometry3d& T_world_current, double translation,
+                  double rotation_deg, const PoseOf& pose_of) {
+  It revisited = end;
+  if (!(translation > 0.0 && rotation_deg > 0.0)) return end;
+  double best = 2.0;  // a motion inside both thresholds scores below 2
+  for (It it = begin; it != end; ++it) {
+    const PoseMotion m = pose_motion(pose_of(*it), T_world_current);
+    if (m.translation >= translation || m.rotation >= rotation_deg * M_PI / 180.0) continue;
+    const double score = motion_in_thresholds(m, translation, rotation_deg);
+    if (score < best) best = score, revisited = it;
+  }
+  return revisited;
+}
 
 }  // namespace fslam::core
