@@ -154,7 +154,7 @@ Client::Client(const ClientOptions& options) : id_(make_client_id()) {
     frames_refused_ = e.what();
   }
   control_writer_ = make_writer(participant_, control_topic_, Delivery::reliable);
-  pose_reader_ = make_reader(participant_, poses_topic_, Delivery::reliable);
+  pose_reader_ = make_reader(participant_, poses_topic_, Delivery::stream);
   result_reader_ = make_reader(participant_, results_topic_, Delivery::reliable);
   status_reader_ = make_reader(participant_, status_topic_, Delivery::best_effort);
   try {

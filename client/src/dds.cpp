@@ -30,6 +30,9 @@ struct Qos {
     if (delivery == Delivery::reliable) {
       dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
       dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+    } else if (delivery == Delivery::stream) {
+      dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+      dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 1024);
     } else if (delivery == Delivery::newest) {
       dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
       dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 1);

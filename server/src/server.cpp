@@ -108,7 +108,7 @@ bool Server::activate(std::string* why) {
     frame_reader_ = client::make_bounded_reader(participant_, frames_topic_, 8);
     control_reader_ = client::make_reader(participant_, control_topic_, Delivery::reliable);
     request_reader_ = client::make_reader(participant_, requests_topic_, Delivery::reliable);
-    pose_writer_ = client::make_writer(participant_, poses_topic_, Delivery::reliable);
+    pose_writer_ = client::make_writer(participant_, poses_topic_, Delivery::stream);
     result_writer_ = client::make_writer(participant_, results_topic_, Delivery::reliable);
     status_writer_ = client::make_writer(participant_, status_topic_, Delivery::best_effort);
     views_topic_ = client::make_topic(participant_, &fslam_proto_View_desc, prefix, "views");

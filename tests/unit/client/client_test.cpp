@@ -224,5 +224,55 @@ TEST(Client, AnUnansweredRequestIsSentAgainWithItsId) {
   server.join();
 }
 
+// A stream's DDS instance is its session (client for requests and results), never one frame or
+// request: Cyclone keeps every instance a writer ever wrote for the writer's life, so a key per
+// frame grew the server by ~1.4 KB per pose in the soak (docs/reliability.md). Two frame ids of
+// one session map to one instance handle; another session to another.
+TEST(Client, OneDdsInstancePerSessionNotPerFrame) {
+  test::use_loopback_dds();
+  const std::string prefix = "clientinstances" + std::to_string(getpid());
+  Entity participant = make_participant(DDS_DOMAIN_DEFAULT);
+  const auto handles = [&](const dds_topic_descriptor_t* desc, const char* name, void* a, void* b,
+                           void* other) {
+    Entity topic = make_topic(participant, desc, prefix, name);
+    Entity writer = make_writer(participant, topic, Delivery::reliable);
+    dds_instance_handle_t ha = 0, hb = 0, ho = 0;
+    EXPECT_EQ(dds_register_instance(writer.get(), &ha, a), DDS_RETCODE_OK) << name;
+    EXPECT_EQ(dds_register_instance(writer.get(), &hb, b), DDS_RETCODE_OK) << name;
+    EXPECT_EQ(dds_register_instance(writer.get(), &ho, other), DDS_RETCODE_OK) << name;
+    EXPECT_EQ(ha, hb) << name << ": two frame (request) ids of one stream must be one instance";
+    EXPECT_NE(ha, ho) << name << ": two streams must be two instances";
+  };
+  char s1[] = "s1", s2[] = "s2", empty[] = "";
+  fslam_proto_Frame fa{}, fb{}, fo{};
+  fa.session = fb.session = s1;
+  fo.session = s2;
+  fa.frame_id = 1;
+  fb.frame_id = fo.frame_id = 2;
+  handles(&fslam_proto_Frame_desc, "frames", &fa, &fb, &fo);
+  fslam_proto_PoseStamped pa{}, pb{}, po{};
+  pa.session = pb.session = s1;
+  po.session = s2;
+  pa.note = pb.note = po.note = empty;
+  pa.frame_id = 1;
+  pb.frame_id = po.frame_id = 2;
+  handles(&fslam_proto_PoseStamped_desc, "poses", &pa, &pb, &po);
+  fslam_proto_Request ra{}, rb{}, ro{};
+  ra.client = rb.client = s1;
+  ro.client = s2;
+  ra.map_name = rb.map_name = ro.map_name = ra.path = rb.path = ro.path = empty;
+  ra.segment.text = rb.segment.text = ro.segment.text = empty;
+  ra.request_id = 1;
+  rb.request_id = ro.request_id = 2;
+  handles(&fslam_proto_Request_desc, "requests", &ra, &rb, &ro);
+  fslam_proto_Result qa{}, qb{}, qo{};
+  qa.client = qb.client = s1;
+  qo.client = s2;
+  qa.map_name = qb.map_name = qo.map_name = qa.error = qb.error = qo.error = qa.path = qb.path = qo.path = empty;
+  qa.request_id = 1;
+  qb.request_id = qo.request_id = 2;
+  handles(&fslam_proto_Result_desc, "results", &qa, &qb, &qo);
+}
+
 }  // namespace
 }  // namespace fslam::client
