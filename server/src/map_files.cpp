@@ -11,6 +11,7 @@
 #include "fslam/core/io/file_writer.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/keyframe_file.hpp"
+#include "fslam/core/io/keyframe_images_file.hpp"
 #include "fslam/core/io/text_tables.hpp"
 #include "fslam/core/io/trajectory_io.hpp"
 
@@ -50,6 +51,7 @@ fs::path previous_of(const fs::path& dir) { return dir.parent_path() / ("." + di
 constexpr const char* kCompleteMarker = ".complete";
 constexpr const char* kKeyframeFile = "keyframes.bin";
 constexpr const char* kHeadsFile = "heads.fae";
+constexpr const char* kKeyframeImagesFile = "keyframe_images.bin";
 
 // Fault tests only (tests/integration/save_kill_test.sh): FSLAM_FAULT_SAVE_PAUSE_MS widens the
 // steps of the swap so that a kill lands inside them; unset (always, in use) it costs nothing.
@@ -131,6 +133,8 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
       (map.keyframes && !map.keyframes->empty() &&
        !core::write_keyframe_file((staging / kKeyframeFile).string(), *map.keyframes, why)) ||
       (map.heads && !map.heads->save((staging / kHeadsFile).string(), why)) ||
+      (map.keyframe_images && !map.keyframe_images->empty() &&
+       !core::write_keyframe_images_file((staging / kKeyframeImagesFile).string(), *map.keyframe_images, why)) ||
       !core::write_file((staging / kCompleteMarker).string(), "", why) || !core::sync_directory(staging.string(), why)) {
     // A full disk lands here ("No space left on device"): the previous version is untouched.
     fs::remove_all(staging, ec);
@@ -208,6 +212,14 @@ bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why) {
       return false;
     }
     loaded.heads = std::move(heads);
+  }
+  if (fs::exists(folder / kKeyframeImagesFile)) {
+    auto images = std::make_shared<std::vector<core::KeyframeImages>>();
+    if (!core::read_keyframe_images_file((folder / kKeyframeImagesFile).string(), images.get(), why)) {
+      if (why) *why = "load map: " + *why;
+      return false;
+    }
+    loaded.keyframe_images = std::move(images);
   }
   *map = std::move(loaded);
   return true;

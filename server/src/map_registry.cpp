@@ -5,6 +5,7 @@
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/server/backend_factory.hpp"
 #include "fslam/server/map_directory.hpp"
 
 namespace fslam::server {
@@ -111,9 +112,9 @@ bool MapRegistry::refine(MapEntry& map, std::uint32_t steps, std::string* why) {
   std::shared_ptr<core::SlamPipeline> pipeline;
   {
     std::lock_guard<std::mutex> lock(map.mutex);
-    if (!map.pipeline) {
-      return core::fail(why, what + "it was loaded from disk, and refinement needs the keyframe images it was "
-                                    "mapped from, which are not saved; extend it or stream it in this server");
+    if (!map.pipeline && (!map.loaded_keyframe_images || map.loaded_keyframe_images->empty())) {
+      return core::fail(why, what + "it was loaded from a folder without keyframe images (keyframe_images.bin: "
+                                    "saved before they were), and refinement needs the images it was mapped from");
     }
     if (map.streaming) {
       return core::fail(why, what + "it has a streaming session; refine when it closes (SESSION_CLOSE "
@@ -121,10 +122,11 @@ bool MapRegistry::refine(MapEntry& map, std::uint32_t steps, std::string* why) {
     }
     if (map.refining) return core::fail(why, what + "a refinement of it is running");
     map.refining = true;
-    pipeline = map.pipeline;
+    pipeline = map.pipeline;  // null: a loaded map (refine_loaded)
   }
   std::string reason;
-  const bool ok = pipeline->refine(static_cast<int>(steps), &reason, nullptr, &stop_refining_);
+  const bool ok = pipeline ? pipeline->refine(static_cast<int>(steps), &reason, nullptr, &stop_refining_)
+                           : refine_loaded(map, steps, &reason);
   {
     std::lock_guard<std::mutex> lock(map.mutex);
     map.refining = false;
@@ -139,6 +141,26 @@ void MapRegistry::withdraw(const std::string& name) {
   maps_.erase(name);
 }
 
+bool MapRegistry::refine_loaded(MapEntry& map, std::uint32_t steps, std::string* why) {
+  // The server's mapper settings, its SH degree and feature width the map's; no feature decoder:
+  // the saved keyframes carry no feature targets, so the steps fit colour and geometry and leave
+  // the distilled latents as they are (Mapper::restore_keyframes).
+  const core::MapVersions::Version version = map.loaded.latest();
+  core::MapperConfig config = config_.pipeline.mapper;
+  config.sh_degree = version->sh_degree;
+  config.feature_dim = version->feature_dim;
+  std::string notice;
+  std::shared_ptr<const core::Rasterizer> rasterizer =
+      make_rasterizer(config_.compute.backend, RasterUse::kMapping, &notice, why);
+  if (!rasterizer) return false;
+  core::Mapper mapper(config, std::move(rasterizer));
+  if (!mapper.set_map(*version, why) || !mapper.restore_keyframes(*map.loaded_keyframe_images, why)) return false;
+  const bool ok = mapper.refine(static_cast<int>(steps), why, nullptr, &stop_refining_);
+  // What was done is published either way (refine publishes the steps done before a stop).
+  map.loaded.publish(mapper.versions().latest());
+  return ok;
+}
+
 bool MapRegistry::load(const std::string& name, const std::string& folder, std::string* why) {
   if (!valid_map_name(name, why)) return false;
   StoredMap stored;
@@ -150,6 +172,7 @@ bool MapRegistry::load(const std::string& name, const std::string& folder, std::
   map->poses = std::move(stored.poses);
   map->loaded_keyframes = std::move(stored.keyframes);
   map->loaded_heads = std::move(stored.heads);
+  map->loaded_keyframe_images = std::move(stored.keyframe_images);
   for (std::size_t i = 0; i < map->poses.size(); ++i) map->pose_index[map->poses[i].frame_id] = i;
   map->saved = {map->loaded.version_number(), map->poses.size()};
   std::lock_guard<std::mutex> lock(mutex_);
@@ -181,8 +204,13 @@ bool MapRegistry::enough_disk_for(const StoredMap& stored, std::string* why) con
   // heads.fae: its parameters and the normalisation as f32, names and shapes under 4 KB.
   const std::uint64_t heads =
       stored.heads ? 4 * (stored.heads->parameters().size() + 2 * stored.heads->input_mean().size()) + 4096 : 0;
+  // keyframe_images.bin: the PNGs at level 1, at most 3 bytes a pixel for colour and 2 for depth.
+  std::uint64_t images = 0;
+  if (stored.keyframe_images) {
+    for (const core::KeyframeImages& k : *stored.keyframe_images) images += 5 * k.colour.total() + 4096;
+  }
   const std::uint64_t needed = core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() +
-                               32768 * keyframes + heads + 4096;
+                               32768 * keyframes + heads + images + 4096;
   const std::uint64_t reserve = static_cast<std::uint64_t>(config_.min_free_disk_mb) << 20;
   if (space.available >= needed + reserve) return true;
   const auto mib = [](std::uint64_t bytes) { return std::to_string((bytes + (1 << 20) - 1) >> 20); };
@@ -203,6 +231,7 @@ bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* wh
   }
   stored.keyframes = map.keyframes();
   stored.heads = map.heads();
+  stored.keyframe_images = map.keyframe_images();
   if (!enough_disk_for(stored, why)) return false;
   if (!save_map_folder(folder, stored, why)) return false;
   // Only a save to the map's own folder (the one a restart loads it from) counts as saved.

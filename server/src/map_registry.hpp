@@ -45,6 +45,9 @@ struct MapEntry {
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> loaded_keyframes;
   // A loaded map's online feature heads (map_files.hpp heads.fae); null: none saved.
   std::shared_ptr<const core::FeatureAutoencoder> loaded_heads;
+  // A loaded map's mapper keyframe images (map_files.hpp keyframe_images.bin); null: none saved.
+  // Set at load and never changed (a refinement of the loaded map keeps them).
+  std::shared_ptr<const std::vector<core::KeyframeImages>> loaded_keyframe_images;
 
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
   // The keyframes a session can relocalise against: those the streaming pipeline described so
@@ -57,6 +60,11 @@ struct MapEntry {
   // its newest version, or the loaded ones (null: none, as without the decoded L_feat).
   std::shared_ptr<const core::FeatureAutoencoder> heads() const {
     return pipeline ? pipeline->feature_heads() : loaded_heads;
+  }
+  // The images of the keyframes the map was mapped from, as of its newest version: the streaming
+  // pipeline's mapper's, or the loaded ones (null or empty: none). Refinement needs them.
+  std::shared_ptr<const std::vector<core::KeyframeImages>> keyframe_images() const {
+    return pipeline ? pipeline->mapper().published_keyframe_images() : loaded_keyframe_images;
   }
 };
 
@@ -91,10 +99,11 @@ class MapRegistry {
       const std::function<std::shared_ptr<core::SlamPipeline>(MapEntry& old, std::string* why)>& make_pipeline,
       std::string* why);
   // Post-trajectory refinement of `map` (docs/protocol.md "Refinement"): `steps` steps of its
-  // pipeline's mapper over the keyframes it stored, then a new version. Needs a map streamed in
-  // this server (a loaded one has no keyframe images) with no streaming session and no other
-  // refinement running; steps within server.max_refine_steps. Stops early, saying so, once
-  // stop_refining() was called. False with `why` otherwise.
+  // pipeline's mapper over the keyframes it stored, then a new version; a loaded map (no
+  // pipeline) is refined by a mapper of the server's settings over the keyframe images saved
+  // with it. Needs keyframe images (a map saved before they were has none), no streaming
+  // session and no other refinement running; steps within server.max_refine_steps. Stops early,
+  // saying so, once stop_refining() was called. False with `why` otherwise.
   bool refine(MapEntry& map, std::uint32_t steps, std::string* why);
   // Refinements running, and any asked for from now on, stop within a step (shutdown); and again
   // allowed.
@@ -117,6 +126,8 @@ class MapRegistry {
  private:
   // server.min_free_disk_mb: room on map_dir's disk for a save of `stored` and the reserve.
   bool enough_disk_for(const StoredMap& stored, std::string* why) const;
+  // refine() of a loaded map: a mapper over its saved keyframe images.
+  bool refine_loaded(MapEntry& map, std::uint32_t steps, std::string* why);
   void log(const std::string& message) const {
     if (log_) log_(message);
   }

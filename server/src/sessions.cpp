@@ -246,6 +246,13 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_extender(MapEntry& map, std::
     core::fail(why, "extend map '" + map.name + "': " + reason);
     return nullptr;
   }
+  // The keyframes the map was mapped from stay in the mapper's sampling (the regions mapped
+  // before keep being optimised) and are saved with the extended map.
+  const auto images = map.keyframe_images();
+  if (pipeline && images && !images->empty() && !pipeline->mapper().restore_keyframes(*images, &reason)) {
+    core::fail(why, "extend map '" + map.name + "': " + reason);
+    return nullptr;
+  }
   if (pipeline && pipeline->feature_heads() && log_) {
     log_("extend map '" + map.name + "': the decoded L_feat continues through " +
          (heads ? std::string("the map's online feature heads") : "the pretrained heads (the map has none saved)"));

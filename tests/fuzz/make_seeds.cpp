@@ -202,6 +202,23 @@ int main(int argc, char** argv) {
     }
   }
 
+  {
+    // Two keyframes of a 16x12 camera kept at half scale.
+    std::vector<fslam::core::KeyframeImages> keyframes(2);
+    keyframes[1].frame_id = -1;
+    keyframes[1].T_world_camera.translation() = Eigen::Vector3d(0.1, 0.0, -0.2);
+    for (auto& kf : keyframes) {
+      kf.input_camera = {12.0, 12.0, 7.5, 5.5, 16, 12};
+      kf.colour = cv::Mat(6, 8, CV_8UC3, cv::Scalar(10, 120, 240));
+      kf.depth = cv::Mat(6, 8, CV_32FC1, cv::Scalar(1.25f));
+    }
+    fs::create_directories(out / "keyframe_images");
+    if (!fslam::core::write_keyframe_images_file((out / "keyframe_images/two.bin").string(), keyframes, &why)) {
+      std::fprintf(stderr, "%s\n", why.c_str());
+      return 1;
+    }
+  }
+
   const std::string nul(1, '\0');
   write(out / "dataset/tum",
         std::string(1, '\0') + "# rgb\n1.0 rgb/1.png\n1.033 rgb/2.png\n" + nul +

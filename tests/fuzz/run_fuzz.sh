@@ -20,7 +20,7 @@ SECONDS_EACH=10
 JOBS="$(nproc)"
 ONLY=""
 SEEDS=0
-TARGETS=(frame request ply trajectory keyframes dataset autoencoder onnx config)
+TARGETS=(frame request ply trajectory keyframes keyframe_images dataset autoencoder onnx config)
 
 while [[ $# -gt 0 ]]; do
   case "$1" in

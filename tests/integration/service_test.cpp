@@ -861,10 +861,28 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   EXPECT_GE(views_checked, 1) << "no view written to " << dir << "/views1";
 
   {
-    // A loaded map cannot be refined: its keyframe images were not saved.
+    // A loaded map refines over the keyframe images saved with it: a new version, the same
+    // Gaussians, and renders at ar1's localised poses still show the frames' surfaces.
+    ASSERT_TRUE(std::filesystem::exists(dir + "/maps/room/keyframe_images.bin"));
+    std::string refine_err;
+    EXPECT_EQ(run_command(fslam_bin() + " refine-map --map room --steps 20 --prefix " + prefix, &out, &refine_err), 0)
+        << refine_err;
+    core::RgbdFrame frame;
+    client::RenderOutput r;
+    ASSERT_TRUE(render_at_localised(49, &frame, &r));
+    EXPECT_GT(r.map_version, version_before) << "the refinement of the loaded map published no version";
+    EXPECT_EQ(r.map_gaussians, gaussians_before);
+    double coverage = 0;
+    EXPECT_LT(mean_depth_error(*channel(r, client::kDepth), 1000.0f, frame.depth, &coverage), 0.03);
+    EXPECT_GT(coverage, 0.8);
+    version_before = r.map_version;
+    // A map saved before keyframe images were (no keyframe_images.bin) is refused, saying why.
+    std::filesystem::copy(dir + "/maps/room", dir + "/maps/old_room", std::filesystem::copy_options::recursive);
+    std::filesystem::remove(dir + "/maps/old_room/keyframe_images.bin");
+    ASSERT_TRUE(c.load_map("old_room", "old_room", 20000, &why)) << why;
     std::string refused_err;
-    EXPECT_NE(run_command(fslam_bin() + " refine-map --map room --steps 10 --prefix " + prefix, &out, &refused_err), 0);
-    EXPECT_NE(refused_err.find("loaded from disk"), std::string::npos) << refused_err;
+    EXPECT_NE(run_command(fslam_bin() + " refine-map --map old_room --steps 10 --prefix " + prefix, &out, &refused_err), 0);
+    EXPECT_NE(refused_err.find("without keyframe images"), std::string::npos) << refused_err;
   }
 
   // (b) Extend: frames 100-159 relocalise in the saved map and are mapped into it while a

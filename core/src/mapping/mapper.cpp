@@ -100,14 +100,53 @@ bool Mapper::store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::str
   // Nearest neighbour: averaging depth across an edge invents surfaces that are not there.
   cv::resize(keyframe.depth, depth, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
   if (!make_view(colour, depth, cam, keyframe.T_world_camera, out, why)) return false;
-  // The refinement's images, kept as 8-bit colour and float depth at refine_scale.
+  // The refinement's (and a saved map's) images, kept as 8-bit colour and float depth.
   if (config_.refine_scale > config_.training_scale) {
     const PinholeCamera rcam = keyframe.camera.scaled(config_.refine_scale);
     cv::resize(keyframe.colour, out->refine_colour, cv::Size(rcam.width, rcam.height), 0, 0,
                cv::INTER_AREA);
     cv::resize(keyframe.depth, out->refine_depth, cv::Size(rcam.width, rcam.height), 0, 0,
                cv::INTER_NEAREST);
+  } else {
+    out->refine_colour = colour;
+    out->refine_depth = depth;
   }
+  return true;
+}
+
+bool Mapper::restore_keyframes(const std::vector<KeyframeImages>& images, std::string* why) {
+  if (!keyframes_.empty()) return fail(why, "restore keyframes: the mapper already stores keyframes");
+  std::vector<StoredKeyframe> restored;
+  restored.reserve(images.size());
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    const KeyframeImages& k = images[i];
+    const std::string what = "restore keyframes: keyframe " + std::to_string(i) + ": ";
+    std::string reason;
+    if (!k.input_camera.is_valid(&reason)) return fail(why, what + reason);
+    const PinholeCamera kept = k.input_camera.scaled(kept_scale());
+    const cv::Size size(kept.width, kept.height);
+    if (k.colour.type() != CV_8UC3 || k.depth.type() != CV_32FC1 || k.colour.size() != size ||
+        k.depth.size() != size) {
+      return fail(why, what + "colour (8-bit RGB) and depth (float) must be " + std::to_string(kept.width) + "x" +
+                           std::to_string(kept.height) + ", the input camera at the mapper's kept scale " +
+                           std::to_string(kept_scale()));
+    }
+    if (!k.T_world_camera.matrix().allFinite()) return fail(why, what + "non-finite pose");
+    StoredKeyframe kf;
+    kf.frame_id = static_cast<std::int64_t>(i) - static_cast<std::int64_t>(images.size());  // -n..-1
+    kf.input_camera = k.input_camera;
+    const PinholeCamera cam = k.input_camera.scaled(config_.training_scale);
+    cv::Mat colour, depth;
+    cv::resize(k.colour, colour, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_AREA);
+    cv::resize(k.depth, depth, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
+    if (!make_view(colour, depth, cam, k.T_world_camera, &kf, why)) return false;
+    kf.refine_colour = k.colour;
+    kf.refine_depth = k.depth;
+    restored.push_back(std::move(kf));
+  }
+  keyframes_ = std::move(restored);
+  while (keyframes_.size() > config_.max_stored_keyframes) drop_most_redundant_keyframe();
+  publish();
   return true;
 }
 
@@ -542,6 +581,16 @@ void Mapper::reset_round() {
 
 void Mapper::publish() {
   versions_.publish(std::make_shared<const GaussianMap>(map_));
+  // The stored keyframes' images go with the version: headers only, the pixels are shared.
+  auto images = std::make_shared<std::vector<KeyframeImages>>();
+  images->reserve(keyframes_.size());
+  for (const StoredKeyframe& kf : keyframes_) {
+    images->push_back({kf.frame_id, kf.input_camera, kf.view.T_camera_world.inverse(), kf.refine_colour, kf.refine_depth});
+  }
+  {
+    std::lock_guard<std::mutex> lock(heads_mutex_);
+    kept_images_ = std::move(images);
+  }
   // The heads go with the version (copied only when LoRA stepped since: ~0.4 MB, next to the map's copy).
   const FeatureAutoencoder* heads = feature_decoder();
   if (heads == nullptr || heads->online_steps() == published_heads_steps_) return;
@@ -549,6 +598,15 @@ void Mapper::publish() {
   published_heads_steps_ = heads->online_steps();
   std::lock_guard<std::mutex> lock(heads_mutex_);
   heads_ = std::move(copy);
+}
+
+bool Mapper::render(const RenderView& view, RenderResult* result, std::string* why) const {
+  return rasterizer_->forward(map_, view, RenderSettings{}, result, why);
+}
+
+std::shared_ptr<const std::vector<KeyframeImages>> Mapper::published_keyframe_images() const {
+  std::lock_guard<std::mutex> lock(heads_mutex_);
+  return kept_images_;
 }
 
 std::shared_ptr<const FeatureAutoencoder> Mapper::published_heads() const {
@@ -632,7 +690,7 @@ bool Mapper::refine(int steps, std::string* why, const std::function<void(int, i
     const float t = steps > 1 ? static_cast<float>(it) / static_cast<float>(steps - 1) : 0.0f;
     adam_.set_learning_rate(kAdamMeans, lr.means * std::pow(0.01f, t));
     const StoredKeyframe& kf = keyframes_[sample_keyframe(true)];
-    if (kf.refine_colour.empty()) {
+    if (config_.refine_scale <= config_.training_scale) {
       if (!step(kf, nullptr, why)) return false;
     } else {
       StoredKeyframe view;

@@ -248,8 +248,9 @@ class Client {
   // gets the server-side folder.
   bool save_map(const std::string& map_name, const std::string& folder, int timeout_ms,
                 std::string* saved_to, std::string* why);
-  // Post-trajectory refinement of a map the server streamed and no session streams into now:
-  // `steps` steps over its stored keyframes, then a new version (docs/protocol.md "Refinement").
+  // Post-trajectory refinement of a map no session streams into now, streamed in the server or
+  // loaded with its keyframe images: `steps` steps over its stored keyframes, then a new version
+  // (docs/protocol.md "Refinement").
   bool refine_map(const std::string& map_name, std::uint32_t steps, int timeout_ms, std::string* why);
   // Loads <map_dir>/<folder> on the server and serves it as `map_name`.
   bool load_map(const std::string& map_name, const std::string& folder, int timeout_ms,

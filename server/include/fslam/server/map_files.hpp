@@ -8,6 +8,9 @@
 //   heads.fae       the feature autoencoder with the heads' LoRA as online mapping adapted them
 //                   (core/features/feature_autoencoder.hpp's weights file), for sessions that
 //                   extend the map; absent when it was mapped without the decoded L_feat
+//   keyframe_images.bin  the mapper's stored keyframes' colour and depth (at its kept scale) and
+//                   poses (core/io/keyframe_images_file.hpp), for refining the map after a
+//                   restart and for extend sessions; absent in maps saved before it was written
 #pragma once
 
 #include <cstdint>
@@ -20,6 +23,7 @@
 #include "fslam/core/features/feature_autoencoder.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/map/gaussian_map.hpp"
+#include "fslam/core/mapping/mapper.hpp"
 #include "fslam/core/tracking/relocaliser.hpp"
 
 namespace fslam::server {
@@ -36,6 +40,7 @@ struct StoredMap {
   std::vector<FramePose> poses;   // in processing order
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes;  // null: none
   std::shared_ptr<const core::FeatureAutoencoder> heads;  // null: none (no decoded L_feat)
+  std::shared_ptr<const std::vector<core::KeyframeImages>> keyframe_images;  // null: none
 };
 
 // Writes the folder next to `dir` first (hidden: `.NAME.saving`) and renames it into place

@@ -5,6 +5,7 @@
 // is published as immutable versions.
 #pragma once
 
+#include <algorithm>
 #include <atomic>
 #include <cstdint>
 #include <functional>
@@ -57,8 +58,8 @@ struct MapperConfig {
   // (docs/mapping.md).
   double training_scale = 0.25;
   // Post-trajectory refinement renders at this fraction of the input size when it is above
-  // training_scale (0: at training_scale); each keyframe then keeps its colour and depth at
-  // this size, 0.54 MB per 640x480 keyframe at 0.5. Measured on redkitchen 0-299 with
+  // training_scale (0: at training_scale); each keyframe keeps its colour and depth at this
+  // size (at training_scale when not above it: kept_scale()), 0.54 MB per 640x480 keyframe at 0.5. Measured on redkitchen 0-299 with
   // --refine 2000: 23.73-23.80 dB held-out against 22.83 at training_scale (docs/mapping.md).
   double refine_scale = 0.5;
   // Insertion: lattice stride on the training-resolution image where the map does not explain
@@ -181,6 +182,18 @@ struct RefinementStats {
   double insert_ms = 0, optimise_ms = 0, prune_ms = 0;
 };
 
+// A stored keyframe's images as the mapper keeps them for refinement, at refine_scale (or
+// training_scale when that is not smaller) of `input_camera`: saved with a map
+// (`keyframe_images.bin`, core/io/keyframe_images_file.hpp) so that a map loaded later can be
+// refined, and an extend session keeps optimising the regions mapped before it.
+struct KeyframeImages {
+  std::int64_t frame_id = 0;
+  PinholeCamera input_camera;  // of the frame the keyframe came from
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+  cv::Mat colour;  // CV_8UC3 RGB, input_camera.scaled(Mapper::kept_scale()) in size
+  cv::Mat depth;   // CV_32FC1 metres, 0 = missing, the same size
+};
+
 class Mapper {
  public:
   Mapper(const MapperConfig& config, std::shared_ptr<const Rasterizer> rasterizer);
@@ -216,6 +229,18 @@ class Mapper {
   // held-out reconstruction error of the heads. NaN + why when it cannot be measured.
   double decoded_feature_error(const RenderView& view, const FeatureObservation& observation,
                                const FeatureAutoencoder& decoder, std::string* why) const;
+  // The stored keyframes' images as of the newest published version (their pixels shared, never
+  // changed in place), oldest first. Any thread: a server saves them with the map.
+  std::shared_ptr<const std::vector<KeyframeImages>> published_keyframe_images() const;
+  // Takes `images` (a saved map's, published_keyframe_images) as stored keyframes, oldest first,
+  // renumbered -n..-1 so that they never meet a new frame's id, before any keyframe was added;
+  // publishes. They carry no feature targets: steps on them fit colour and geometry, not the
+  // latents. Past max_stored_keyframes the most redundant make room. False with `why` on images
+  // of another size than input_camera.scaled(kept_scale()) or a bad pose or camera.
+  bool restore_keyframes(const std::vector<KeyframeImages>& images, std::string* why);
+  // The scale of input images at which stored keyframes keep their images (refine_scale, or
+  // training_scale when refine_scale is not larger).
+  double kept_scale() const { return std::max(config_.refine_scale, config_.training_scale); }
   // Replaces the map (resume from a saved map); keyframes are kept. Its Gaussians have no
   // anchor keyframe: loop closure never moves them.
   bool set_map(const GaussianMap& map, std::string* why);
@@ -227,6 +252,8 @@ class Mapper {
   std::size_t move_keyframes(const std::vector<std::pair<std::int64_t, Eigen::Isometry3d>>& T_world_keyframe);
 
   const GaussianMap& map() const { return map_; }
+  // The current map rasterised at `view` (features included when it has them). Mapping thread.
+  bool render(const RenderView& view, RenderResult* result, std::string* why) const;
   MapVersions& versions() { return versions_; }
   std::size_t keyframe_count() const { return keyframes_.size(); }
   // The frame ids of the stored keyframes, oldest first.
@@ -247,8 +274,8 @@ class Mapper {
     PlanarImage normals;          // [3, h, w] from the observed depth
     PlanarImage feature_target;   // [D, h, w] or empty (dropped after insertion when decoded)
     FeatureObservation feature_observation;  // the decoded L_feat's target, or empty
-    cv::Mat refine_colour;        // CV_8UC3 at refine_scale, empty when not kept
-    cv::Mat refine_depth;         // CV_32FC1 metres at refine_scale
+    cv::Mat refine_colour;        // CV_8UC3 at kept_scale() (refinement's and saving's images)
+    cv::Mat refine_depth;         // CV_32FC1 metres at kept_scale()
   };
   bool store(const MapperKeyframe& keyframe, StoredKeyframe* out, std::string* why) const;
   // Colour in [0, 1], depth inside the mapper's range and normals of images of camera `cam`.
@@ -294,8 +321,9 @@ class Mapper {
   GaussianGradients grads_;
   std::optional<FeatureAutoencoder> decoder_;  // online heads of the decoded L_feat
   std::int64_t published_heads_steps_ = -1;    // decoder_'s online steps at the last copy
-  mutable std::mutex heads_mutex_;             // guards heads_
+  mutable std::mutex heads_mutex_;             // guards heads_ and kept_images_
   std::shared_ptr<const FeatureAutoencoder> heads_;
+  std::shared_ptr<const std::vector<KeyframeImages>> kept_images_ = std::make_shared<std::vector<KeyframeImages>>();
   std::vector<float> f_samples_, u_samples_, grad_f_samples_;  // [K, D], [K, C], [K, D] scratch
   std::optional<Eigen::Isometry3d> last_mapping_keyframe_;
   std::int64_t last_mapping_keyframe_id_ = 0;
