@@ -232,6 +232,10 @@ int write_outputs(const RunArgs& args, const core::Dataset& dataset, const core:
   const core::SequenceTracking& t = run.tracking;
   if (!core::write_tum_trajectory((out / "trajectory.txt").string(), t.trajectory, &why)) return fail(why);
   if (!core::write_gaussian_ply((out / "map.ply").string(), pipeline.mapper().map(), &why)) return fail(why);
+  // The online heads the map's latents were fitted through (the decoded L_feat), as a server saves
+  // them with a map: decoding those latents needs these, not the pretrained ones.
+  const std::shared_ptr<const core::FeatureAutoencoder> heads = pipeline.feature_heads();
+  if (heads && !heads->save((out / "heads.fae").string(), &why)) return fail(why);
   nlohmann::json metrics = metrics_json(args, dataset, options, config, run, mapping);
   if (dataset.has_ground_truth()) {
     core::AteResult ate;
@@ -262,7 +266,7 @@ int write_outputs(const RunArgs& args, const core::Dataset& dataset, const core:
     std::printf("decoded features, held-out: error %.4f with the pretrained heads, %.4f after %lld LoRA steps\n",
                 run.feature_error_pretrained, run.feature_error_online, static_cast<long long>(run.lora_steps));
   }
-  std::printf("wrote %s/{trajectory.txt,map.ply,metrics.json,renders/}\n", args.out.c_str());
+  std::printf("wrote %s/{trajectory.txt,map.ply,%smetrics.json,renders/}\n", args.out.c_str(), heads ? "heads.fae," : "");
   return 0;
 }
 
