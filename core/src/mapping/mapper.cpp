@@ -600,10 +600,6 @@ void Mapper::publish() {
   heads_ = std::move(copy);
 }
 
-bool Mapper::render(const RenderView& view, RenderResult* result, std::string* why) const {
-  return rasterizer_->forward(map_, view, RenderSettings{}, result, why);
-}
-
 std::shared_ptr<const std::vector<KeyframeImages>> Mapper::published_keyframe_images() const {
   std::lock_guard<std::mutex> lock(heads_mutex_);
   return kept_images_;

@@ -252,8 +252,6 @@ class Mapper {
   std::size_t move_keyframes(const std::vector<std::pair<std::int64_t, Eigen::Isometry3d>>& T_world_keyframe);
 
   const GaussianMap& map() const { return map_; }
-  // The current map rasterised at `view` (features included when it has them). Mapping thread.
-  bool render(const RenderView& view, RenderResult* result, std::string* why) const;
   MapVersions& versions() { return versions_; }
   std::size_t keyframe_count() const { return keyframes_.size(); }
   // The frame ids of the stored keyframes, oldest first.
