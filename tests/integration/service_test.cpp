@@ -952,6 +952,65 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   EXPECT_LT(report3["localisation"]["max_error_m"].get<double>(), 0.03) << out3;
 }
 
+// Issue 19 over DDS: a map streamed with features (the decoded L_feat, tiny weights trained by
+// the test) is saved with its online heads and keyframe images; after a restart an extend session
+// continues those heads (not the pretrained ones), relocalises within 3 cm, and the extended map
+// still answers promptless segmentation (its Gaussians carry latents).
+TEST(ServiceSessionModes, ExtendWithFeaturesContinuesTheMapsOnlineHeads) {
+  test::use_loopback_dds();
+  const std::string dir = test::fresh_temp_dir("extend_features").string();
+  const std::string prefix = "exf" + std::to_string(getpid());
+  std::string out, err, why;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + dir + "/seq --frames 90 --seed 9", &out, &err), 0) << err;
+  const std::string weights = dir + "/w.fae";
+  ASSERT_EQ(run_command(fslam_bin() + " train-autoencoder --images " + dir + "/seq --input-size 256 --steps 50 "
+                            "--batch 64 --pixels-per-image 500 --out " + weights,
+                        &out, &err),
+            0)
+      << out << err;
+  // A small encoder input keeps features-on mapping quick on CPU.
+  const std::string server_args = "--prefix " + prefix + " --map-dir " + dir + "/maps --set features.autoencoder_path=" +
+                                  weights + " --set features.encoder.builtin.input_width=256 "
+                                  "--set features.encoder.builtin.input_height=256 --set tracking_encoder_input=256";
+  auto server = std::make_unique<test::ScopedServer>(server_args, dir + "/server1.log");
+  ASSERT_GT(server->pid(), 0);
+  ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "builder", "--map fmap --frames 0:60:2", &out), 0) << out;
+  server->stop();  // saves fmap
+  for (const char* file : {"map.ply", "keyframes.bin", "heads.fae", "keyframe_images.bin"})
+    EXPECT_TRUE(std::filesystem::exists(dir + "/maps/fmap/" + file)) << file << " was not saved";
+  std::ifstream first_heads(dir + "/maps/fmap/heads.fae", std::ios::binary);
+  const std::string heads_before((std::istreambuf_iterator<char>(first_heads)), std::istreambuf_iterator<char>());
+
+  server = std::make_unique<test::ScopedServer>(server_args, dir + "/server2.log");
+  ASSERT_GT(server->pid(), 0);
+  std::string ext_out;
+  ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "extender",
+                            "--mode extend --map fmap --frames 60:90:2 --report " + dir + "/ext.json", &ext_out),
+            0)
+      << ext_out;
+  const nlohmann::json report = stream_report(dir + "/ext.json");
+  ASSERT_TRUE(report.contains("localisation")) << report.dump();
+  EXPECT_EQ(report["lost"].get<int>(), 0) << ext_out;
+  EXPECT_LT(report["localisation"]["max_error_m"].get<double>(), 0.03) << ext_out;
+  {
+    client::Client c(options_for(prefix));
+    client::SegmentQuery q;
+    q.map_name = "fmap";
+    q.view.from_frame = true;
+    q.view.frame_id = 70;
+    client::SegmentOutput seg;
+    EXPECT_TRUE(c.segment(q, &seg, 60000, &why)) << why;
+  }
+  server->stop();
+  std::ifstream log(dir + "/server2.log");
+  const std::string log_text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  EXPECT_NE(log_text.find("continues through the map's online feature heads"), std::string::npos) << log_text;
+  std::ifstream second_heads(dir + "/maps/fmap/heads.fae", std::ios::binary);
+  const std::string heads_after((std::istreambuf_iterator<char>(second_heads)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(heads_after.size(), heads_before.size());
+  EXPECT_NE(heads_after, heads_before) << "the extend session's LoRA steps were not saved with the map";
+}
+
 // A load resent after its answer (the answer may have been lost) gets the remembered answer
 // again, and the map is loaded once: saves and loads run once per request id.
 TEST(ServiceResend, ALoadResentAfterItsAnswerIsAnsweredAgainAndRunsOnce) {
