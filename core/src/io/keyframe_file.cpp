@@ -3,10 +3,10 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <fstream>
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/file_writer.hpp"
+#include "binary_record.hpp"
 
 namespace fslam::core {
 namespace {
@@ -18,32 +18,8 @@ constexpr int kOrbBytes = 32;
 constexpr std::uint32_t kMaxKeypoints = 100000;
 constexpr std::uint32_t kMaxGlobal = 1u << 16;
 
-template <typename T>
-void put(std::string* out, const T& value) {
-  out->append(reinterpret_cast<const char*>(&value), sizeof(T));
-}
-
-// Reads from the bytes in order; every read is bounds-checked.
-class Reader {
- public:
-  explicit Reader(const std::string& bytes) : bytes_(bytes) {}
-  template <typename T>
-  bool get(T* value) {
-    return get_bytes(value, sizeof(T));
-  }
-  bool get_bytes(void* out, std::size_t size) {
-    if (size > bytes_.size() - at_) return false;
-    if (size == 0) return true;  // `out` may be an empty vector's null data (memcpy must not see it)
-    std::memcpy(out, bytes_.data() + at_, size);
-    at_ += size;
-    return true;
-  }
-  std::size_t left() const { return bytes_.size() - at_; }
-
- private:
-  const std::string& bytes_;
-  std::size_t at_ = 0;
-};
+using io_detail::ByteReader;
+using io_detail::put;
 
 bool finite(const float* v, std::size_t n) {
   for (std::size_t i = 0; i < n; ++i)
@@ -64,10 +40,7 @@ bool write_keyframe_file(const std::string& path, const std::vector<DescribedKey
         (K > 0 && d.descriptors.type() != CV_8UC1))
       return fail(why, path + ": keyframe " + std::to_string(kf.id) + " has descriptors that do not match its points");
     put(&out, static_cast<std::int64_t>(kf.id));
-    const Eigen::Matrix3d R = kf.T_world_camera.rotation();
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) put(&out, R(r, c));
-    for (int a = 0; a < 3; ++a) put(&out, kf.T_world_camera.translation()[a]);
+    io_detail::put_pose(&out, kf.T_world_camera);
     put(&out, static_cast<std::uint32_t>(K));
     put(&out, static_cast<std::uint32_t>(d.global.size()));
     for (std::size_t i = 0; i < K; ++i) out.append(reinterpret_cast<const char*>(d.descriptors.ptr(static_cast<int>(i))), kOrbBytes);
@@ -82,7 +55,7 @@ bool parse_keyframe_file(const std::string& bytes, const std::string& name,
                          std::vector<DescribedKeyframe>* keyframes, std::string* why) {
   keyframes->clear();  // and left empty on any error
   std::vector<DescribedKeyframe> parsed;
-  Reader in(bytes);
+  ByteReader in(bytes);
   char magic[sizeof(kMagic)];
   if (!in.get_bytes(magic, sizeof(magic)) || std::memcmp(magic, kMagic, sizeof(kMagic)) != 0)
     return fail(why, name + ": not a keyframe file (no FSLMKFD1 header)");
@@ -96,19 +69,10 @@ bool parse_keyframe_file(const std::string& bytes, const std::string& name,
   for (std::uint32_t k = 0; k < count; ++k) {
     const std::string where = name + ": keyframe " + std::to_string(k);
     DescribedKeyframe kf;
-    double T[12];
     std::uint32_t K = 0, G = 0;
-    if (!in.get(&kf.id) || !in.get_bytes(T, sizeof(T)) || !in.get(&K) || !in.get(&G))
-      return fail(why, where + ": truncated");
-    Eigen::Matrix3d R;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) R(r, c) = T[3 * r + c];
-    const Eigen::Vector3d t(T[9], T[10], T[11]);
-    if (!R.allFinite() || !t.allFinite()) return fail(why, where + ": non-finite pose");
-    if (!(R.transpose() * R).isIdentity(1e-6) || !(R.determinant() > 0.0))
-      return fail(why, where + ": pose rotation is not a rotation");
-    kf.T_world_camera.linear() = R;
-    kf.T_world_camera.translation() = t;
+    if (!in.get(&kf.id)) return fail(why, where + ": truncated");
+    if (!io_detail::get_pose(&in, where, &kf.T_world_camera, why)) return false;
+    if (!in.get(&K) || !in.get(&G)) return fail(why, where + ": truncated");
     if (K > kMaxKeypoints || G > kMaxGlobal) return fail(why, where + ": declares " + std::to_string(K) +
                                                               " keypoints and " + std::to_string(G) +
                                                               " descriptor values, more than allowed");
@@ -133,17 +97,9 @@ bool parse_keyframe_file(const std::string& bytes, const std::string& name,
 }
 
 bool read_keyframe_file(const std::string& path, std::vector<DescribedKeyframe>* keyframes, std::string* why) {
-  std::ifstream file(path, std::ios::binary | std::ios::ate);
-  if (!file) return fail(why, path + ": cannot open");
-  const std::streamoff size = file.tellg();
-  if (size < 0) return fail(why, path + ": cannot read its size");
-  if (static_cast<std::size_t>(size) > kMaxKeyframeFileBytes)
-    return fail(why, path + ": " + std::to_string(size) + " bytes, more than the " +
-                         std::to_string(kMaxKeyframeFileBytes >> 20) + " MiB a keyframe file may hold");
-  std::string bytes(static_cast<std::size_t>(size), '\0');
-  file.seekg(0);
-  if (!file.read(bytes.data(), size)) return fail(why, path + ": read failed");
-  return parse_keyframe_file(bytes, path, keyframes, why);
+  std::string bytes;
+  return io_detail::read_capped_file(path, kMaxKeyframeFileBytes, "a keyframe file", &bytes, why) &&
+         parse_keyframe_file(bytes, path, keyframes, why);
 }
 
 }  // namespace fslam::core

@@ -2,7 +2,6 @@
 
 #include <cstdint>
 #include <cstring>
-#include <fstream>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -10,6 +9,7 @@
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/file_writer.hpp"
 #include "fslam/core/io/image_io.hpp"
+#include "binary_record.hpp"
 
 namespace fslam::core {
 namespace {
@@ -17,38 +17,8 @@ namespace {
 constexpr char kMagic[8] = {'F', 'S', 'L', 'M', 'K', 'F', 'I', '1'};
 constexpr std::uint32_t kMaxSide = 1u << 14;  // pixels, width or height
 
-template <typename T>
-void put(std::string* out, const T& value) {
-  out->append(reinterpret_cast<const char*>(&value), sizeof(T));
-}
-
-// Reads from the bytes in order; every read is bounds-checked.
-class Reader {
- public:
-  explicit Reader(const std::string& bytes) : bytes_(bytes) {}
-  template <typename T>
-  bool get(T* value) {
-    return get_bytes(value, sizeof(T));
-  }
-  bool get_bytes(void* out, std::size_t size) {
-    if (size > bytes_.size() - at_) return false;
-    if (size > 0) std::memcpy(out, bytes_.data() + at_, size);
-    at_ += size;
-    return true;
-  }
-  // A length-prefixed blob, viewed in place.
-  bool get_blob(const std::uint8_t** data, std::uint32_t* size) {
-    if (!get(size) || *size > left()) return false;
-    *data = reinterpret_cast<const std::uint8_t*>(bytes_.data() + at_);
-    at_ += *size;
-    return true;
-  }
-  std::size_t left() const { return bytes_.size() - at_; }
-
- private:
-  const std::string& bytes_;
-  std::size_t at_ = 0;
-};
+using io_detail::ByteReader;
+using io_detail::put;
 
 bool put_png(std::string* out, const cv::Mat& image, std::string* why) {
   std::vector<std::uint8_t> png;
@@ -95,10 +65,7 @@ bool write_keyframe_images_file(const std::string& path, const std::vector<Keyfr
     for (const double v : {kf.input_camera.fx, kf.input_camera.fy, kf.input_camera.cx, kf.input_camera.cy}) put(&out, v);
     put(&out, static_cast<std::uint32_t>(kf.input_camera.width));
     put(&out, static_cast<std::uint32_t>(kf.input_camera.height));
-    const Eigen::Matrix3d R = kf.T_world_camera.rotation();
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) put(&out, R(r, c));
-    for (int a = 0; a < 3; ++a) put(&out, kf.T_world_camera.translation()[a]);
+    io_detail::put_pose(&out, kf.T_world_camera);
     cv::Mat bgr;
     cv::cvtColor(kf.colour, bgr, cv::COLOR_RGB2BGR);  // so that the PNG views in any viewer
     if (!put_png(&out, bgr, why) || !put_png(&out, depth_to_u16(kf.depth, kKeyframeDepthScale), why))
@@ -111,7 +78,7 @@ bool parse_keyframe_images_file(const std::string& bytes, const std::string& nam
                                 std::vector<KeyframeImages>* keyframes, std::string* why) {
   keyframes->clear();  // and left empty on any error
   std::vector<KeyframeImages> parsed;
-  Reader in(bytes);
+  ByteReader in(bytes);
   char magic[sizeof(kMagic)];
   if (!in.get_bytes(magic, sizeof(magic)) || std::memcmp(magic, kMagic, sizeof(kMagic)) != 0)
     return fail(why, name + ": not a keyframe images file (no FSLMKFI1 header)");
@@ -125,25 +92,16 @@ bool parse_keyframe_images_file(const std::string& bytes, const std::string& nam
   for (std::uint32_t k = 0; k < count; ++k) {
     const std::string where = name + ": keyframe " + std::to_string(k);
     KeyframeImages kf;
-    double cam[4], T[12];
+    double cam[4];
     std::uint32_t width = 0, height = 0;
-    if (!in.get(&kf.frame_id) || !in.get_bytes(cam, sizeof(cam)) || !in.get(&width) || !in.get(&height) ||
-        !in.get_bytes(T, sizeof(T)))
+    if (!in.get(&kf.frame_id) || !in.get_bytes(cam, sizeof(cam)) || !in.get(&width) || !in.get(&height))
       return fail(why, where + ": truncated");
     if (width == 0 || height == 0 || width > kMaxSide || height > kMaxSide)
       return fail(why, where + ": input camera of " + std::to_string(width) + "x" + std::to_string(height) + " pixels");
     kf.input_camera = {cam[0], cam[1], cam[2], cam[3], static_cast<int>(width), static_cast<int>(height)};
     std::string reason;
     if (!kf.input_camera.is_valid(&reason)) return fail(why, where + ": input camera: " + reason);
-    Eigen::Matrix3d R;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) R(r, c) = T[3 * r + c];
-    const Eigen::Vector3d t(T[9], T[10], T[11]);
-    if (!R.allFinite() || !t.allFinite()) return fail(why, where + ": non-finite pose");
-    if (!(R.transpose() * R).isIdentity(1e-6) || !(R.determinant() > 0.0))
-      return fail(why, where + ": pose rotation is not a rotation");
-    kf.T_world_camera.linear() = R;
-    kf.T_world_camera.translation() = t;
+    if (!io_detail::get_pose(&in, where, &kf.T_world_camera, why)) return false;
     const std::uint8_t *colour = nullptr, *depth = nullptr;
     std::uint32_t colour_size = 0, depth_size = 0;
     if (!in.get_blob(&colour, &colour_size) || !in.get_blob(&depth, &depth_size))
@@ -166,17 +124,9 @@ bool parse_keyframe_images_file(const std::string& bytes, const std::string& nam
 }
 
 bool read_keyframe_images_file(const std::string& path, std::vector<KeyframeImages>* keyframes, std::string* why) {
-  std::ifstream file(path, std::ios::binary | std::ios::ate);
-  if (!file) return fail(why, path + ": cannot open");
-  const std::streamoff size = file.tellg();
-  if (size < 0) return fail(why, path + ": cannot read its size");
-  if (static_cast<std::size_t>(size) > kMaxKeyframeImagesFileBytes)
-    return fail(why, path + ": " + std::to_string(size) + " bytes, more than the " +
-                         std::to_string(kMaxKeyframeImagesFileBytes >> 20) + " MiB a keyframe images file may hold");
-  std::string bytes(static_cast<std::size_t>(size), '\0');
-  file.seekg(0);
-  if (!file.read(bytes.data(), size)) return fail(why, path + ": read failed");
-  return parse_keyframe_images_file(bytes, path, keyframes, why);
+  std::string bytes;
+  return io_detail::read_capped_file(path, kMaxKeyframeImagesFileBytes, "a keyframe images file", &bytes, why) &&
+         parse_keyframe_images_file(bytes, path, keyframes, why);
 }
 
 }  // namespace fslam::core
