@@ -110,6 +110,21 @@ bool recover_map_folder(const std::string& dir, std::string* note) {
   return is_map_folder(dir);
 }
 
+namespace {
+
+// A loaded map's keyframe_images.bin into a save's staging folder, as it is. A source that is gone
+// (its folder removed behind the server's back) leaves the map saved without them: the map itself
+// matters more than being able to refine it.
+bool copy_keyframe_images(const std::string& source, const fs::path& target, std::string* why) {
+  std::error_code ec;
+  if (source.empty() || !fs::exists(source, ec)) return true;
+  fs::copy_file(source, target, fs::copy_options::overwrite_existing, ec);
+  if (ec) return core::fail(why, "cannot copy " + source + ": " + ec.message());
+  return true;
+}
+
+}  // namespace
+
 bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* why) {
   if (!map.gaussians) return core::fail(why, "save map: no map");
   const fs::path target(dir), staging = staging_of(target), old = previous_of(target);
@@ -135,6 +150,7 @@ bool save_map_folder(const std::string& dir, const StoredMap& map, std::string* 
       (map.heads && !map.heads->save((staging / kHeadsFile).string(), why)) ||
       (map.keyframe_images && !map.keyframe_images->empty() &&
        !core::write_keyframe_images_file((staging / kKeyframeImagesFile).string(), *map.keyframe_images, why)) ||
+      (!map.keyframe_images && !copy_keyframe_images(map.keyframe_images_file, staging / kKeyframeImagesFile, why)) ||
       !core::write_file((staging / kCompleteMarker).string(), "", why) || !core::sync_directory(staging.string(), why)) {
     // A full disk lands here ("No space left on device"): the previous version is untouched.
     fs::remove_all(staging, ec);
@@ -213,14 +229,8 @@ bool load_map_folder(const std::string& dir, StoredMap* map, std::string* why) {
     }
     loaded.heads = std::move(heads);
   }
-  if (fs::exists(folder / kKeyframeImagesFile)) {
-    auto images = std::make_shared<std::vector<core::KeyframeImages>>();
-    if (!core::read_keyframe_images_file((folder / kKeyframeImagesFile).string(), images.get(), why)) {
-      if (why) *why = "load map: " + *why;
-      return false;
-    }
-    loaded.keyframe_images = std::move(images);
-  }
+  // Read when used (refine, extend): a server loads every saved map at start.
+  if (fs::exists(folder / kKeyframeImagesFile)) loaded.keyframe_images_file = fs::absolute(folder / kKeyframeImagesFile).string();
   *map = std::move(loaded);
   return true;
 }

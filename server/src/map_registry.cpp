@@ -5,10 +5,20 @@
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
+#include "fslam/core/io/keyframe_images_file.hpp"
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/map_directory.hpp"
 
 namespace fslam::server {
+
+bool MapEntry::keyframe_images(std::vector<core::KeyframeImages>* images, std::string* why) const {
+  images->clear();
+  if (pipeline) {
+    *images = *pipeline->mapper().published_keyframe_images();
+    return true;
+  }
+  return loaded_keyframe_images_file.empty() || core::read_keyframe_images_file(loaded_keyframe_images_file, images, why);
+}
 
 void MapRegistry::set_directory(MapDirectoryMember* directory) {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -112,7 +122,7 @@ bool MapRegistry::refine(MapEntry& map, std::uint32_t steps, std::string* why) {
   std::shared_ptr<core::SlamPipeline> pipeline;
   {
     std::lock_guard<std::mutex> lock(map.mutex);
-    if (!map.pipeline && (!map.loaded_keyframe_images || map.loaded_keyframe_images->empty())) {
+    if (!map.pipeline && map.loaded_keyframe_images_file.empty()) {
       return core::fail(why, what + "it was loaded from a folder without keyframe images (keyframe_images.bin: "
                                     "saved before they were), and refinement needs the images it was mapped from");
     }
@@ -153,8 +163,10 @@ bool MapRegistry::refine_loaded(MapEntry& map, std::uint32_t steps, std::string*
   std::shared_ptr<const core::Rasterizer> rasterizer =
       make_rasterizer(config_.compute.backend, RasterUse::kMapping, &notice, why);
   if (!rasterizer) return false;
+  std::vector<core::KeyframeImages> images;
+  if (!map.keyframe_images(&images, why)) return false;
   core::Mapper mapper(config, std::move(rasterizer));
-  if (!mapper.set_map(*version, why) || !mapper.restore_keyframes(*map.loaded_keyframe_images, why)) return false;
+  if (!mapper.set_map(*version, why) || !mapper.restore_keyframes(images, why)) return false;
   const bool ok = mapper.refine(static_cast<int>(steps), why, nullptr, &stop_refining_);
   // What was done is published either way (refine publishes the steps done before a stop).
   map.loaded.publish(mapper.versions().latest());
@@ -172,7 +184,7 @@ bool MapRegistry::load(const std::string& name, const std::string& folder, std::
   map->poses = std::move(stored.poses);
   map->loaded_keyframes = std::move(stored.keyframes);
   map->loaded_heads = std::move(stored.heads);
-  map->loaded_keyframe_images = std::move(stored.keyframe_images);
+  map->loaded_keyframe_images_file = stored.keyframe_images_file;
   for (std::size_t i = 0; i < map->poses.size(); ++i) map->pose_index[map->poses[i].frame_id] = i;
   map->saved = {map->loaded.version_number(), map->poses.size()};
   std::lock_guard<std::mutex> lock(mutex_);
@@ -208,6 +220,9 @@ bool MapRegistry::enough_disk_for(const StoredMap& stored, std::string* why) con
   std::uint64_t images = 0;
   if (stored.keyframe_images) {
     for (const core::KeyframeImages& k : *stored.keyframe_images) images += 5 * k.colour.total() + 4096;
+  } else if (!stored.keyframe_images_file.empty()) {
+    images = std::filesystem::file_size(stored.keyframe_images_file, ec);  // copied as it is
+    if (ec) images = 0;
   }
   const std::uint64_t needed = core::gaussian_ply_bytes(*stored.gaussians) + 400 * stored.poses.size() +
                                32768 * keyframes + heads + images + 4096;
@@ -231,7 +246,8 @@ bool MapRegistry::save(MapEntry& map, const std::string& folder, std::string* wh
   }
   stored.keyframes = map.keyframes();
   stored.heads = map.heads();
-  stored.keyframe_images = map.keyframe_images();
+  if (map.pipeline) stored.keyframe_images = map.pipeline->mapper().published_keyframe_images();
+  stored.keyframe_images_file = map.loaded_keyframe_images_file;
   if (!enough_disk_for(stored, why)) return false;
   if (!save_map_folder(folder, stored, why)) return false;
   // Only a save to the map's own folder (the one a restart loads it from) counts as saved.

@@ -45,9 +45,9 @@ struct MapEntry {
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> loaded_keyframes;
   // A loaded map's online feature heads (map_files.hpp heads.fae); null: none saved.
   std::shared_ptr<const core::FeatureAutoencoder> loaded_heads;
-  // A loaded map's mapper keyframe images (map_files.hpp keyframe_images.bin); null: none saved.
-  // Set at load and never changed (a refinement of the loaded map keeps them).
-  std::shared_ptr<const std::vector<core::KeyframeImages>> loaded_keyframe_images;
+  // A loaded map's keyframe_images.bin (map_files.hpp), read when the map is refined or
+  // extended; empty: none saved. Set at load and never changed.
+  std::string loaded_keyframe_images_file;
 
   core::MapVersions& versions() { return pipeline ? pipeline->mapper().versions() : loaded; }
   // The keyframes a session can relocalise against: those the streaming pipeline described so
@@ -62,10 +62,9 @@ struct MapEntry {
     return pipeline ? pipeline->feature_heads() : loaded_heads;
   }
   // The images of the keyframes the map was mapped from, as of its newest version: the streaming
-  // pipeline's mapper's, or the loaded ones (null or empty: none). Refinement needs them.
-  std::shared_ptr<const std::vector<core::KeyframeImages>> keyframe_images() const {
-    return pipeline ? pipeline->mapper().published_keyframe_images() : loaded_keyframe_images;
-  }
+  // pipeline's mapper's, or those saved with a loaded map, read from its file (empty: none).
+  // False with `why` when that file cannot be read.
+  bool keyframe_images(std::vector<core::KeyframeImages>* images, std::string* why) const;
 };
 
 class MapRegistry {

@@ -248,8 +248,9 @@ std::shared_ptr<core::SlamPipeline> Sessions::make_extender(MapEntry& map, std::
   }
   // The keyframes the map was mapped from stay in the mapper's sampling (the regions mapped
   // before keep being optimised) and are saved with the extended map.
-  const auto images = map.keyframe_images();
-  if (pipeline && images && !images->empty() && !pipeline->mapper().restore_keyframes(*images, &reason)) {
+  std::vector<core::KeyframeImages> images;
+  if (pipeline && (!map.keyframe_images(&images, &reason) ||
+                   (!images.empty() && !pipeline->mapper().restore_keyframes(images, &reason)))) {
     core::fail(why, "extend map '" + map.name + "': " + reason);
     return nullptr;
   }

@@ -40,7 +40,11 @@ struct StoredMap {
   std::vector<FramePose> poses;   // in processing order
   std::shared_ptr<const std::vector<core::DescribedKeyframe>> keyframes;  // null: none
   std::shared_ptr<const core::FeatureAutoencoder> heads;  // null: none (no decoded L_feat)
-  std::shared_ptr<const std::vector<core::KeyframeImages>> keyframe_images;  // null: none
+  // The mapper's keyframe images: in memory (a streamed map's), or, for a loaded map, the
+  // keyframe_images.bin it was loaded from, read only when refined or extended (they are ~0.5 MB
+  // a keyframe decoded) and copied as they are by a save. Neither: none.
+  std::shared_ptr<const std::vector<core::KeyframeImages>> keyframe_images;
+  std::string keyframe_images_file;
 };
 
 // Writes the folder next to `dir` first (hidden: `.NAME.saving`) and renames it into place
