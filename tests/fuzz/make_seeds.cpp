@@ -16,6 +16,7 @@
 #include "fslam/core/features/feature_autoencoder.hpp"
 #include "fslam/core/io/gaussian_ply.hpp"
 #include "fslam/core/io/keyframe_file.hpp"
+#include "fslam/core/io/keyframe_images_file.hpp"
 
 namespace fs = std::filesystem;
 
