@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "fslam/core/error.hpp"
+#include "fslam/core/io/image_io.hpp"
 #include "fslam/server/render_images.hpp"
 
 namespace fslam::server {
@@ -106,15 +107,7 @@ bool decode_image(const EncodedImage& image, int cv_type, const char* what, cv::
 bool encoded_image_size(const std::uint8_t* d, std::size_t n, fslam_proto_ImageEncoding encoding,
                         std::uint32_t* width, std::uint32_t* height) {
   auto be16 = [&](std::size_t i) { return static_cast<std::uint32_t>(d[i]) << 8 | d[i + 1]; };
-  auto be32 = [&](std::size_t i) { return be16(i) << 16 | be16(i + 2); };
-  if (encoding == fslam_proto_ENCODING_PNG) {
-    // Signature (8 bytes), then the IHDR chunk: length, "IHDR", width, height.
-    static const std::uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-    if (n < 24 || std::memcmp(d, kSignature, 8) != 0 || std::memcmp(d + 12, "IHDR", 4) != 0) return false;
-    *width = be32(16);
-    *height = be32(20);
-    return true;
-  }
+  if (encoding == fslam_proto_ENCODING_PNG) return core::png_declared_size(d, n, width, height);
   if (encoding == fslam_proto_ENCODING_JPEG) {
     // Markers from SOI on, each with a 16-bit length, up to the first start-of-frame.
     if (n < 4 || d[0] != 0xFF || d[1] != 0xD8) return false;

@@ -46,7 +46,6 @@ class ByteReader {
 
 // f64[12]: the rotation row-major, then the translation.
 void put_pose(std::string* out, const Eigen::Isometry3d& T);
-constexpr std::size_t kPoseBytes = 12 * 8;
 // Reads put_pose's record; false with "<where>: truncated" / "non-finite pose" / "pose rotation
 // is not a rotation".
 bool get_pose(ByteReader* in, const std::string& where, Eigen::Isometry3d* T, std::string* why);

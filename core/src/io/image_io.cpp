@@ -3,6 +3,7 @@
 #include "fslam/core/error.hpp"
 
 #include <cmath>
+#include <cstring>
 #include <memory>
 
 #include <OpenImageIO/imageio.h>
@@ -121,6 +122,18 @@ bool write_image(const std::string& path, const cv::Mat& image, std::string* why
   if (!out->open(path, spec)) return fail(why, path + ": cannot open for writing (" + out->geterror() + ")");
   if (!out->write_image(type, m.data) || !out->close())
     return fail(why, path + ": cannot write image (" + out->geterror() + ")");
+  return true;
+}
+
+bool png_declared_size(const std::uint8_t* data, std::size_t n, std::uint32_t* width, std::uint32_t* height) {
+  // Signature (8 bytes), then the IHDR chunk: length (4), "IHDR", width and height big-endian.
+  static const std::uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (n < 24 || std::memcmp(data, kSignature, 8) != 0 || std::memcmp(data + 12, "IHDR", 4) != 0) return false;
+  const auto be32 = [&](std::size_t i) {
+    return std::uint32_t{data[i]} << 24 | std::uint32_t{data[i + 1]} << 16 | std::uint32_t{data[i + 2]} << 8 | data[i + 3];
+  };
+  *width = be32(16);
+  *height = be32(20);
   return true;
 }
 

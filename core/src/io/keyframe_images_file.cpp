@@ -34,13 +34,9 @@ bool put_png(std::string* out, const cv::Mat& image, std::string* why) {
 // header before decoding, so a small blob cannot declare a huge image); false: not such a PNG.
 bool decode(const std::uint8_t* data, std::uint32_t size, int flags, int type, int max_width, int max_height,
             cv::Mat* image) {
-  // Signature (8 bytes), then the IHDR chunk: length (4), "IHDR", width and height big-endian.
-  if (size < 24 || std::memcmp(data, "\x89PNG\r\n\x1a\n", 8) != 0 || std::memcmp(data + 12, "IHDR", 4) != 0)
-    return false;  // PNG only: no other decoder runs
-  const auto be32 = [](const std::uint8_t* p) {
-    return (std::uint32_t{p[0]} << 24) | (std::uint32_t{p[1]} << 16) | (std::uint32_t{p[2]} << 8) | p[3];
-  };
-  if (be32(data + 16) > static_cast<std::uint32_t>(max_width) || be32(data + 20) > static_cast<std::uint32_t>(max_height))
+  std::uint32_t width = 0, height = 0;  // PNG only: no other decoder runs
+  if (!png_declared_size(data, size, &width, &height) || width > static_cast<std::uint32_t>(max_width) ||
+      height > static_cast<std::uint32_t>(max_height))
     return false;
   try {
     *image = cv::imdecode(cv::Mat(1, static_cast<int>(size), CV_8UC1, const_cast<std::uint8_t*>(data)), flags);

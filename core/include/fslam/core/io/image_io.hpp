@@ -1,6 +1,8 @@
 // Image files on disk (OpenImageIO): 8-bit colour, 16-bit depth, float maps.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <string>
 
 #include <opencv2/core/mat.hpp>
@@ -32,5 +34,9 @@ bool write_image(const std::string& path, const cv::Mat& image, std::string* why
 
 // Converts metres to 16-bit depth: raw = round(depth_m * scale), missing or out-of-range -> 0.
 cv::Mat depth_to_u16(const cv::Mat& depth_m, double scale);
+
+// The size a PNG declares in its IHDR header (read before decoding, so that a small payload
+// cannot decode to gigabytes); false when `data` does not start with a PNG signature and IHDR.
+bool png_declared_size(const std::uint8_t* data, std::size_t n, std::uint32_t* width, std::uint32_t* height);
 
 }  // namespace fslam::core
