@@ -255,6 +255,11 @@ bool Client::call(dds_entity_t writer, const void* sample, const std::string& cl
   const auto key = std::make_pair(client, id);
   {
     std::lock_guard<std::mutex> lock(callback_mutex_);
+    if (awaited_.size() >= kMaxCallsInFlight) {
+      return fail(why, what + ": " + std::to_string(awaited_.size()) +
+                           " calls of this client are waiting for answers (Client::kMaxCallsInFlight); "
+                           "wait for one, or use another Client");
+    }
     awaited_[key] = std::make_unique<Answer>();
   }
   // Wait for discovery both ways (a server's reader of the request and its writer of results:

@@ -164,6 +164,7 @@ void Server::cleanup() {
   pose_writer_.reset();
   result_writer_.reset();
   status_writer_.reset();
+  status_keys_.clear();
   view_writer_.reset();
   participant_.reset();
 }
@@ -205,6 +206,7 @@ void Server::ingest() {
 void Server::publish_status() {
   const std::uint64_t rss = resident_bytes();
   const std::vector<std::shared_ptr<MapEntry>> idle = maps_->idle();
+  std::set<std::pair<std::string, std::string>> keys;  // the instances written this round
   auto describe_map = [&](MapEntry& map, fslam_proto_SessionStatus* st) {
     std::lock_guard<std::mutex> mlock(map.mutex);
     st->streaming = map.streaming;
@@ -224,6 +226,7 @@ void Server::publish_status() {
     st.mode = report.mode.data();
     describe_map(*report.map, &st);
     dds_write(status_writer_.get(), &st);
+    keys.emplace(report.session, report.map_name);
   }
   for (const auto& map : idle) {
     fslam_proto_SessionStatus st{};
@@ -236,7 +239,20 @@ void Server::publish_status() {
     st.mode = empty.data();
     describe_map(*map, &st);
     dds_write(status_writer_.get(), &st);
+    keys.emplace(std::string(), map->name);
   }
+  // A closed session's (or removed map's) instance: Cyclone keeps every instance a writer wrote
+  // until it is unregistered, and so does every reader until it takes the unregistration.
+  for (const auto& [session, map_name] : status_keys_) {
+    if (keys.count({session, map_name})) continue;
+    std::string s = session, m = map_name, empty;
+    fslam_proto_SessionStatus key{};
+    key.session = s.data();
+    key.map_name = m.data();
+    key.last_drop_reason = key.last_skip_reason = key.frame_policy = key.mode = empty.data();
+    dds_unregister_instance(status_writer_.get(), &key);
+  }
+  status_keys_ = std::move(keys);
 }
 
 // ---- in-process sessions (the ROS 2 bridge) ------------------------------------------------

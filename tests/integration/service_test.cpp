@@ -417,6 +417,45 @@ TEST_F(Service, KilledClientLeavesTheServerServing) {
   EXPECT_GT(rendered.map_gaussians, 1000u);
 }
 
+// A closed session's status instance is unregistered by the server: otherwise the status writer,
+// and every status reader, keeps one DDS instance per session ever opened (an open / close loop
+// grew the server without bound; docs/reliability.md). Its map's idle report takes its place.
+TEST_F(Service, ClosedSessionsStatusInstanceIsUnregistered) {
+  client::Entity participant = client::make_participant(DDS_DOMAIN_DEFAULT);
+  client::Entity topic = client::make_topic(participant, &fslam_proto_SessionStatus_desc, prefix_, "status");
+  client::Entity reader = client::make_reader(participant, topic, client::Delivery::best_effort);
+  client::Client c(options_for(prefix_));
+  std::string why;
+  ASSERT_TRUE(c.open_session("brief", "brief_map", 10000, &why)) << why;
+  // Waits up to `seconds` for a status sample of session `session` (alive: valid, and its
+  // instance is remembered; else that instance's unregistration).
+  dds_instance_handle_t instance = 0;
+  const auto wait_for = [&](const std::string& session, bool alive, double seconds) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      void* samples[16] = {nullptr};
+      dds_sample_info_t info[16];
+      const int32_t n = dds_take(reader.get(), samples, info, 16, 16);
+      bool seen = false;
+      for (int32_t i = 0; i < n; ++i) {
+        const auto* st = static_cast<const fslam_proto_SessionStatus*>(samples[i]);
+        if (alive && info[i].valid_data && session == st->session) {
+          instance = info[i].instance_handle;
+          seen = true;
+        }
+        if (!alive && info[i].instance_handle == instance && info[i].instance_state != DDS_IST_ALIVE) seen = true;
+      }
+      if (n > 0) dds_return_loan(reader.get(), samples, n);
+      if (seen) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  };
+  ASSERT_TRUE(wait_for("brief", true, 10.0)) << "no status for the open session";
+  ASSERT_TRUE(c.close_session("brief", 30000, &why)) << why;
+  EXPECT_TRUE(wait_for("brief", false, 10.0)) << "the closed session's status instance was not unregistered";
+}
+
 // Requests that make no sense get error results that say why; the server stays up.
 TEST_F(Service, MalformedRequestsGetErrorResults) {
   client::Client c(options_for(prefix_));

@@ -3,6 +3,7 @@
 // refused before they reach the wire.
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -222,6 +223,47 @@ TEST(Client, AnUnansweredRequestIsSentAgainWithItsId) {
   EXPECT_EQ(client.resends(), before);
   stop = true;
   server.join();
+}
+
+// More calls waiting at once than Client::kMaxCallsInFlight (threads sharing one client) fail at
+// once with an error that says so, instead of overflowing the server's per-client request history
+// in DDS, where they would be lost unseen. No server runs: the calls in flight time out.
+TEST(Client, CallsBeyondTheInFlightBoundFailAtOnce) {
+  test::use_loopback_dds();
+  ClientOptions options;
+  options.prefix = "clientinflight" + std::to_string(getpid());
+  Client client(options);
+  constexpr int kExtra = 8, kTimeoutMs = 3000;
+  constexpr int kCalls = static_cast<int>(Client::kMaxCallsInFlight) + kExtra;
+  std::mutex mutex;
+  int refused = 0, unanswered = 0;
+  double slowest_refusal_s = 0;
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kCalls; ++i) {
+    threads.emplace_back([&] {
+      RenderQuery q;
+      q.map_name = "room";
+      RenderOutput out;
+      std::string why;
+      const auto t0 = std::chrono::steady_clock::now();
+      const bool ok = client.render(q, &out, kTimeoutMs, &why);
+      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      std::lock_guard<std::mutex> lock(mutex);
+      EXPECT_FALSE(ok);
+      if (why.find("kMaxCallsInFlight") != std::string::npos) {
+        ++refused;
+        slowest_refusal_s = std::max(slowest_refusal_s, s);
+      } else if (why.find("no answer") != std::string::npos) {
+        ++unanswered;
+      } else {
+        ADD_FAILURE() << why;
+      }
+    });
+  }
+  for (std::thread& t : threads) t.join();
+  EXPECT_EQ(refused, kExtra);
+  EXPECT_EQ(unanswered, static_cast<int>(Client::kMaxCallsInFlight));
+  EXPECT_LT(slowest_refusal_s, 1.0) << "a refusal must not wait for the calls in flight";
 }
 
 // A stream's DDS instance is its session (client for requests and results), never one frame or

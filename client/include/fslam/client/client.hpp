@@ -3,6 +3,7 @@
 #pragma once
 
 #include <atomic>
+#include <cstddef>
 #include <cstdint>
 #include <condition_variable>
 #include <functional>
@@ -263,6 +264,10 @@ class Client {
   // An unanswered repeatable request goes again after kFirstResendMs, twice that, ... at most
   // kLastResendMs apart.
   static constexpr int kFirstResendMs = 1000, kLastResendMs = 8000;
+  // Calls one client has waiting for answers at once (from several threads); one more fails at
+  // once with an error. The server's reader keeps the newest 64 requests per client (reliable
+  // delivery's history), so a larger burst, with its resends, would lose requests in DDS unseen.
+  static constexpr std::size_t kMaxCallsInFlight = 32;
 
   // Callbacks run on the client's listener thread until the client is destroyed: what they
   // capture must outlive the client (declare it before the client).

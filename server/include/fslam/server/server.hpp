@@ -17,6 +17,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -193,6 +194,10 @@ class Server {
   std::unique_ptr<Sessions> sessions_;   //   the sessions
   std::unique_ptr<Queries> queries_;     //   and the queries
   std::function<void(const TrackedPose&)> pose_listener_;  // handed to each activation's sessions
+  // The (session, map) status instances written last round (ingest thread only): those no longer
+  // reported are unregistered, so that a writer and its readers do not keep one per session ever
+  // opened.
+  std::set<std::pair<std::string, std::string>> status_keys_;
 };
 
 // Prints the effective configuration, then runs a server until SIGINT or SIGTERM, reporting on
