@@ -246,7 +246,18 @@ bool Client::control(const std::string& session, const std::string& map_name, bo
   Answer answer;
   // Opening is repeatable (an open session answers OK again); a repeated close would answer
   // "unknown session" after the first closed it.
-  return call(control_writer_.get(), &msg, session, msg.request_id, what, timeout_ms, &answer, why, open);
+  const bool ok = call(control_writer_.get(), &msg, session, msg.request_id, what, timeout_ms, &answer, why, open);
+  if (!open) {
+    // The session's instances on our writers end with it, so that the server's readers free
+    // theirs instead of keeping one per session ever opened (docs/reliability.md "Measured").
+    dds_unregister_instance(control_writer_.get(), &msg);
+    if (frame_writer_) {
+      fslam_proto_Frame key{};
+      key.session = s.data();
+      dds_unregister_instance(frame_writer_.get(), &key);
+    }
+  }
+  return ok;
 }
 
 bool Client::call(dds_entity_t writer, const void* sample, const std::string& client,

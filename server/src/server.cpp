@@ -23,6 +23,12 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+// Samples a bounded writer holds until every reader acknowledged them; a write past it waits up
+// to 1 s, then fails. Poses: over 30 s of four 30-Hz sessions for a reader that stopped
+// acknowledging while still matched (its DDS lease runs out first). Results answer requests,
+// which a client sends at most 32 at a time (Client::kMaxCallsInFlight).
+constexpr std::int32_t kPosesUnacknowledged = 4096, kResultsUnacknowledged = 1024;
+
 std::uint64_t resident_bytes() {
   long pages = 0, resident = 0;
   if (FILE* f = std::fopen("/proc/self/statm", "r")) {
@@ -108,11 +114,14 @@ bool Server::activate(std::string* why) {
     frame_reader_ = client::make_bounded_reader(participant_, frames_topic_, 8);
     control_reader_ = client::make_reader(participant_, control_topic_, Delivery::reliable);
     request_reader_ = client::make_reader(participant_, requests_topic_, Delivery::reliable);
-    pose_writer_ = client::make_writer(participant_, poses_topic_, Delivery::stream);
-    result_writer_ = client::make_writer(participant_, results_topic_, Delivery::reliable);
+    // Poses and results: bounded writers (keep all, up to N unacknowledged), not keep-last
+    // ones: a keep-last writer keeps its last samples of every instance after they are
+    // acknowledged, for its life, and every session name is an instance (a result instance per
+    // session opened grew the server ~10 KB per session; docs/reliability.md "Measured").
+    pose_writer_ = client::make_bounded_writer(participant_, poses_topic_, kPosesUnacknowledged);
+    result_writer_ = client::make_bounded_writer(participant_, results_topic_, kResultsUnacknowledged);
     status_writer_ = client::make_writer(participant_, status_topic_, Delivery::best_effort);
     views_topic_ = client::make_topic(participant_, &fslam_proto_View_desc, prefix, "views");
-    view_writer_ = client::make_writer(participant_, views_topic_, Delivery::newest);
     waitset_ = client::make_waitset(participant_, {&frame_reader_, &control_reader_, &request_reader_});
     // Scale-out: the instance's record and a claim per map it serves (map_directory.hpp).
     directory_ = std::make_unique<MapDirectoryMember>(
@@ -126,7 +135,7 @@ bool Server::activate(std::string* why) {
   const auto to_log = [this](const std::string& m) { log(m); };
   queries_.reset();  // those of an earlier activation hold the replies replaced here
   sessions_.reset();
-  replies_ = std::make_unique<Replies>(pose_writer_.get(), result_writer_.get(), view_writer_.get());
+  replies_ = std::make_unique<Replies>(pose_writer_.get(), result_writer_.get(), participant_, views_topic_);
   sessions_ = std::make_unique<Sessions>(config_, *maps_, *replies_, *counters_, *query_rasterizer_, to_log);
   sessions_->set_pose_listener(pose_listener_);
   queries_ = std::make_unique<Queries>(config_, *maps_, *replies_, *counters_, *query_rasterizer_,
@@ -165,7 +174,6 @@ void Server::cleanup() {
   result_writer_.reset();
   status_writer_.reset();
   status_keys_.clear();
-  view_writer_.reset();
   participant_.reset();
 }
 

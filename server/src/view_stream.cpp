@@ -11,7 +11,7 @@ ViewStream::ViewStream(std::string session, std::shared_ptr<MapEntry> map, const
     : session_(std::move(session)),
       map_(std::move(map)),
       rasterizer_(rasterizer),
-      replies_(replies),
+      writer_(replies.view_writer()),
       channels_(channels),
       log_(std::move(log)),
       rate_(rate_hz, 0.0),  // no bursts: one view per 1 / rate_hz on average
@@ -81,7 +81,7 @@ void ViewStream::send(const Pending& pending) {
   v.map_gaussians = version->size();
   v.channels = channels_;
   describe_view(view, pending.T_world_camera, &v.T_world_camera, &v.intrinsics);
-  replies_.view(v);
+  dds_write(writer_.get(), &v);
   std::lock_guard<std::mutex> lock(mutex_);
   ++sent_;
 }

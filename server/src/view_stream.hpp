@@ -59,7 +59,7 @@ class ViewStream {
   const std::string session_;
   const std::shared_ptr<MapEntry> map_;
   const core::Rasterizer& rasterizer_;
-  const Replies& replies_;
+  client::Entity writer_;  // this session's own (Replies::view_writer)
   const std::uint32_t channels_;
   Log log_;
   mutable std::mutex mutex_;  // guards everything below

@@ -344,7 +344,9 @@ bool render_to_wire(const core::Rasterizer& rasterizer, const core::GaussianMap&
 
 void Replies::result(const fslam_proto_Result& result) const { dds_write(result_writer_, &result); }
 
-void Replies::view(const fslam_proto_View& view) const { dds_write(view_writer_, &view); }
+client::Entity Replies::view_writer() const {
+  return client::make_writer(participant_, views_topic_, client::Delivery::newest);
+}
 
 void Replies::pose(const std::string& session, std::uint64_t frame_id, double timestamp,
                    const core::TrackingResult& tracked, double decode_ms, double queue_ms,

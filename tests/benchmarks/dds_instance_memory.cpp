@@ -1,6 +1,7 @@
-// DDS instance memory (opt-in benchmark, docs/reliability.md "Soak"): a PoseStamped writer with
-// the server's QoS (Delivery::stream) publishing at a fixed rate, and a reader in a second
-// process taking everything, both printing resident memory every 5 s. `--keys one` writes one
+// DDS instance memory (opt-in benchmark, docs/reliability.md "Soak"): a PoseStamped writer
+// publishing at a fixed rate, with the server's QoS (`--writer bounded`: keep all, up to 4096
+// unacknowledged) or the keep-last one it had before (`--writer keep-last`: Delivery::stream),
+// and a reader in a second process taking everything, both printing resident memory every 5 s. `--keys one` writes one
 // session, as the protocol does; `--keys per-sample` gives every sample its own session key, as a
 // key per frame did before 5139b45 (Cyclone keeps every instance a writer wrote for its life).
 // Run with CYCLONEDDS_URI set to configs/dds/loopback.xml.
@@ -35,10 +36,12 @@ long resident_kib() {
 
 int main(int argc, char** argv) {
   CLI::App app("Resident memory of a PoseStamped writer and reader over time");
-  std::string keys = "one";
+  std::string keys = "one", writer_qos = "bounded";
   int seconds = 30, rate = 500;
   app.add_option("--keys", keys, "one (a session) or per-sample (a new key per sample)")
       ->check(CLI::IsMember({"one", "per-sample"}));
+  app.add_option("--writer", writer_qos, "bounded (the server's) or keep-last (Delivery::stream)")
+      ->check(CLI::IsMember({"bounded", "keep-last"}));
   app.add_option("--seconds", seconds, "How long to publish")->check(CLI::Range(1, 3600));
   app.add_option("--rate", rate, "Samples per second")->check(CLI::Range(1, 100000));
   CLI11_PARSE(app, argc, argv);
@@ -48,7 +51,8 @@ int main(int argc, char** argv) {
   Entity participant = make_participant(DDS_DOMAIN_DEFAULT);
   Entity topic = make_topic(participant, &fslam_proto_PoseStamped_desc, prefix, "poses");
   const auto report = [&](const char* who, int t, long n) {
-    std::printf("%s keys=%s t=%ds samples=%ld resident=%ld KiB\n", who, keys.c_str(), t, n, resident_kib());
+    std::printf("%s writer=%s keys=%s t=%ds samples=%ld resident=%ld KiB\n", who, writer_qos.c_str(), keys.c_str(), t,
+                n, resident_kib());
     std::fflush(stdout);
   };
   if (child == 0) {
@@ -62,7 +66,8 @@ int main(int argc, char** argv) {
     }
     return 0;
   }
-  Entity writer = make_writer(participant, topic, Delivery::stream);
+  Entity writer = writer_qos == "bounded" ? make_bounded_writer(participant, topic, 4096)
+                                          : make_writer(participant, topic, Delivery::stream);
   std::this_thread::sleep_for(std::chrono::seconds(2));  // discovery
   const auto t0 = Clock::now();
   char note[] = "";

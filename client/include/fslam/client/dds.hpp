@@ -52,13 +52,15 @@ class Entity {
 Entity make_participant(dds_domainid_t domain);
 
 // featureslam's kinds of delivery (docs/protocol.md): reliable with the last 64 samples per
-// instance (session control, requests, results); stream: reliable with the last 1024 samples per
-// instance (poses: one instance per session, so a burst of answers to a fast publisher is not
-// overwritten before its reader takes it); best effort (status); or durable: reliable,
+// instance (session control, requests, result readers); stream: reliable with the last 1024
+// samples per instance (pose readers: one instance per session, so a burst of poses is not
+// overwritten before it is taken); best effort (status); or durable: reliable,
 // transient-local, the last sample per instance, so that a reader that joins later still gets
 // the current state (the map directory); or newest: reliable, the last sample per instance only,
 // a newer one replacing any not yet acknowledged (views: a slow reader gets the latest, never a
-// backlog, and never holds the writer back). Frames use a bounded writer and reader (below).
+// backlog, and never holds the writer back). Frames use a bounded writer and reader, the
+// server's poses and results a bounded writer (below): a keep-last writer keeps the last samples
+// of every instance it wrote after they are acknowledged, for its life.
 enum class Delivery { reliable, stream, best_effort, durable, newest };
 
 // Topic <prefix>/<name> of type `desc` (every topic is created with reliable QoS; readers and

@@ -181,7 +181,7 @@ class Server {
   std::function<void(const std::string&)> log_;
   client::Entity participant_, frames_topic_, poses_topic_, control_topic_, results_topic_;
   client::Entity status_topic_, requests_topic_, frame_reader_, control_reader_, request_reader_;
-  client::Entity pose_writer_, result_writer_, status_writer_, views_topic_, view_writer_, waitset_;
+  client::Entity pose_writer_, result_writer_, status_writer_, views_topic_, waitset_;
   std::thread ingest_thread_;
   std::atomic<bool> stop_{false};
   std::shared_ptr<const core::Rasterizer> query_rasterizer_;

@@ -14,6 +14,7 @@
 #include <dds/dds.h>
 #include <opencv2/core/mat.hpp>
 
+#include "fslam/client/dds.hpp"
 #include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/geometry/rgbd_frame.hpp"
 #include "fslam/core/render/rasterizer.hpp"
@@ -146,12 +147,13 @@ bool render_to_wire(const core::Rasterizer& rasterizer, const core::GaussianMap&
                     const core::RenderView& view, std::uint32_t channels, float depth_scale,
                     dds_sequence_fslam_proto_Image* images, ResultImages* out, std::string* why);
 
-// The server's writers of results, poses and views (they must outlive it), shared by sessions
-// and queries.
+// The server's writers of results and poses, and its views topic (they must outlive it), shared
+// by sessions and queries.
 class Replies {
  public:
-  Replies(dds_entity_t pose_writer, dds_entity_t result_writer, dds_entity_t view_writer)
-      : pose_writer_(pose_writer), result_writer_(result_writer), view_writer_(view_writer) {}
+  Replies(dds_entity_t pose_writer, dds_entity_t result_writer, const client::Entity& participant,
+          const client::Entity& views_topic)
+      : pose_writer_(pose_writer), result_writer_(result_writer), participant_(participant), views_topic_(views_topic) {}
   // A result without images: OK when `error` is empty, else ERROR with it.
   void result(const char* client, std::uint64_t request_id, const std::string& map_name,
               const std::string& error) const;
@@ -163,11 +165,15 @@ class Replies {
   // A frame accepted and then not tracked under the live policy, on the pose stream.
   void skip(const std::string& session, std::uint64_t frame_id, double timestamp,
             const std::string& reason) const;
-  // A render at a localise session's pose, on <prefix>/views.
-  void view(const fslam_proto_View& view) const;
+  // A writer of one localise session's renders on <prefix>/views (newest delivery: a newer view
+  // replaces one not yet delivered), deleted with the session: a keep-last writer keeps the
+  // newest sample of every instance it wrote for its life, and a view is a whole render.
+  client::Entity view_writer() const;
 
  private:
-  dds_entity_t pose_writer_, result_writer_, view_writer_;
+  dds_entity_t pose_writer_, result_writer_;
+  const client::Entity& participant_;
+  const client::Entity& views_topic_;
 };
 
 }  // namespace fslam::server
