@@ -391,10 +391,13 @@ TEST_F(TrackerOnSynthRoom, ExtendsAMapFromARelocalisedFirstFrame) {
   EXPECT_FALSE(tracker.localising());
   std::string why;
   TrackingResult result;
-  int keyframes = 0;
+  int keyframes = 0, replaced = 0;
   for (std::size_t i = split; i < trajectory_->size(); ++i) {
     const Eigen::Isometry3d& gt = (*trajectory_)[i].T_world_camera;
     ASSERT_TRUE(tracker.track(frame_at(gt, static_cast<std::int64_t>(i)), &result, &why)) << why;
+    // A keyframe within revisit_* of a described one replaces it (an ASan build's rounding put
+    // one there).
+    if (result.keyframe && tracker.relocaliser().newest_replaced()) ++replaced;
     if (i == split) {
       EXPECT_EQ(result.state, TrackingState::recovered) << result.message;
       EXPECT_TRUE(result.keyframe) << "the frame found is the session's first keyframe";
@@ -407,7 +410,8 @@ TEST_F(TrackerOnSynthRoom, ExtendsAMapFromARelocalisedFirstFrame) {
   }
   EXPECT_GE(keyframes, 2) << "a 16-frame extension makes keyframes";
   EXPECT_GT(tracker.local_map().size(), map_size) << "keyframes grow the map";
-  EXPECT_EQ(tracker.relocaliser().size(), described + static_cast<std::size_t>(keyframes))
+  EXPECT_LE(replaced, 1) << "the extension's path does not revisit the map's keyframes";
+  EXPECT_EQ(tracker.relocaliser().size(), described + static_cast<std::size_t>(keyframes - replaced))
       << "new keyframes are described beside the map's";
 }
 
