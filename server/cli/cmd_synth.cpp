@@ -19,6 +19,7 @@ struct SynthArgs {
   std::size_t frames = core::SynthOptions{}.frames;
   std::uint64_t seed = core::SynthOptions{}.seed;
   std::string noise = core::to_string(core::SynthOptions{}.noise);
+  std::string scene = core::to_string(core::SynthOptions{}.scene);
   std::string path = core::to_string(core::SynthOptions{}.path);
   int laps = core::SynthOptions{}.laps;
   int threads = 0;
@@ -39,6 +40,7 @@ int run_synth(const SynthArgs& args) {
   options.seed = args.seed;
   std::string why;
   if (!core::parse_synth_noise(args.noise, &options.noise, &why)) return fail(why);
+  if (!core::parse_synth_scene(args.scene, &options.scene, &why)) return fail(why);
   if (!core::parse_synth_path(args.path, &options.path, &why)) return fail(why);
   options.laps = args.laps;
   if (!options.is_valid(&why)) return fail(why);
@@ -54,10 +56,10 @@ int run_synth(const SynthArgs& args) {
   progress.finish();
 
   const double mib = static_cast<double>(folder_bytes(args.out)) / (1024.0 * 1024.0);
-  std::printf("wrote %zu frames (%dx%d, seed %llu, noise %s, path %s, %.1f MiB) to %s\n", options.frames,
+  std::printf("wrote %zu frames (%dx%d, seed %llu, noise %s, scene %s, path %s, %.1f MiB) to %s\n", options.frames,
               options.camera.width, options.camera.height,
               static_cast<unsigned long long>(options.seed), core::to_string(options.noise),
-              core::to_string(options.path), mib,
+              core::to_string(options.scene), core::to_string(options.path), mib,
               std::filesystem::absolute(args.out).c_str());
   return 0;
 }
@@ -88,6 +90,11 @@ void add_synth_command(CLI::App& root, CommandList* commands) {
       ->capture_default_str();
   app->add_option("--noise", args->noise, "Depth and colour noise: kinect or none (exact)")
       ->check(CLI::IsMember({"kinect", "none"}))
+      ->capture_default_str();
+  app->add_option("--scene", args->scene,
+                  "Scene: room (one furnished room) or hall (about 13 x 8 m, furnished on both long "
+                  "sides: its loop leaves the tracker's local map)")
+      ->check(CLI::IsMember({"room", "hall"}))
       ->capture_default_str();
   app->add_option("--path", args->path,
                   "Camera path: wander (through the room) or loop (laps of one closed loop, back "

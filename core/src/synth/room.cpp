@@ -515,6 +515,57 @@ SyntheticRoom make_room(std::uint64_t seed) {
   return room;
 }
 
+SyntheticRoom make_hall(std::uint64_t seed) {
+  constexpr int kBays = 3;  // per side
+  Rng rng(synth::stream_seed(seed, synth::Stream::room));
+  SyntheticRoom hall;
+  hall.scene = SynthScene::hall;
+  const double bay_w = rng.uniform(4.2, 4.6);  // x extent of a bay
+  const double bay_d = rng.uniform(3.9, 4.2);  // y extent: half the hall's depth
+  const double H = rng.uniform(2.6, 2.8);
+  const double W = kBays * bay_w, D = 2.0 * bay_d;
+  hall.size = {W, D, H};
+  RoomBuilder builder(&hall);
+  add_structure(rng, W, D, H, builder);
+  for (int side = 0; side < 2; ++side) {
+    for (int b = 0; b < kBays; ++b) {
+      // A bay is furnished as a room's far half, in a room of its own frame, then placed.
+      SyntheticRoom bay;
+      RoomBuilder bay_builder(&bay);
+      const TablePlacement table = add_table(rng, bay_w, bay_d, bay_builder);
+      add_chairs(rng, table, bay_builder);
+      add_table_top(rng, table, bay_builder);
+      add_far_wall(rng, bay_w, bay_d, bay_builder);
+      add_corners(rng, bay_w, bay_d, bay_builder);
+      add_side_walls(rng, bay_w, bay_d, bay_builder);
+      Isometry3d T_hall_bay = pose({b * bay_w, D - bay_d, 0.0});
+      if (side == 1) T_hall_bay = pose({W, D, 0.0}, kPi) * T_hall_bay;  // (x, y) -> (W - x, D - y)
+      const std::string suffix = std::string(side == 0 ? "_n" : "_s") + std::to_string(b + 1);
+      for (SynthObject& o : bay.objects) {
+        builder.add(o.class_id, o.name + suffix, T_hall_bay * o.T_world_object, std::move(o.primitives), o.material);
+      }
+    }
+  }
+  // The corridor between the two rows of tables (their rugs reach about 1.7 m into each half).
+  hall.camera_zone = Eigen::AlignedBox3d(Vector3d(2.0, 0.5 * D - 0.4, 1.35), Vector3d(W - 2.0, 0.5 * D + 0.4, 1.6));
+  hall.light_position = {0.5 * W, 0.5 * D, H - 0.25};
+  hall.look_at = {0.5 * W, D - 0.42 * bay_d, 0.9};  // the north tables' row, for the wander path
+  return hall;
+}
+
+SyntheticRoom make_scene(SynthScene scene, std::uint64_t seed) {
+  return scene == SynthScene::hall ? make_hall(seed) : make_room(seed);
+}
+
+const char* to_string(SynthScene scene) { return scene == SynthScene::hall ? "hall" : "room"; }
+
+bool parse_synth_scene(const std::string& text, SynthScene* scene, std::string* why) {
+  if (text == "room") return *scene = SynthScene::room, true;
+  if (text == "hall") return *scene = SynthScene::hall, true;
+  if (why) *why = "unknown synthetic scene '" + text + "' (room or hall)";
+  return false;
+}
+
 double synth_clearance(const SyntheticRoom& room, const Vector3d& p_world) {
   double best = std::numeric_limits<double>::infinity();
   for (const SynthObject& object : room.objects) {

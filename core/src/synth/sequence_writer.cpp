@@ -87,7 +87,7 @@ bool write_synthetic_sequence(const std::string& dir, const SynthOptions& option
       return fail(why, (root / sub).string() + ": cannot create folder (" + ec.message() + ")");
   }
 
-  const SyntheticRoom room = make_room(options.seed);
+  const SyntheticRoom room = make_scene(options.scene, options.seed);
   const Trajectory trajectory = make_trajectory(room, options);
 
   // Frames after a failure are skipped; of the frames that failed, the lowest is reported.

@@ -69,6 +69,59 @@ Trajectory loop_trajectory(const SyntheticRoom& room, const SynthOptions& option
   return trajectory;
 }
 
+double smoothstep(double u) { return u * u * (3.0 - 2.0 * u); }
+
+// The hall's loop (a lap: east leg, east turn, west leg, west turn): the centre runs along the
+// corridor r north of its middle line going east and r south going west, joined by half circles
+// of radius r; the gaze looks at the north bays going east, swings through west (back down the
+// corridor) in the east turn, looks at the south bays going west and swings through east in the
+// west turn, tilted down towards the tables and swept sideways twice a leg. Everything is
+// periodic in the lap.
+Trajectory hall_loop_trajectory(const SyntheticRoom& hall, const SynthOptions& options) {
+  constexpr double kLeg = 0.36, kTurn = 0.14;  // fractions of a lap (2 legs + 2 turns = 1)
+  constexpr double kR = 0.3;                   // m, half the distance between the two legs
+  const double x0 = hall.camera_zone.min().x(), x1 = hall.camera_zone.max().x();
+  const double c = hall.camera_zone.center().y();
+  const double lap_frames = static_cast<double>(options.frames) / options.laps;
+  Trajectory trajectory;
+  trajectory.reserve(options.frames);
+  for (std::size_t i = 0; i < options.frames; ++i) {
+    const double lap = static_cast<double>(i) / lap_frames;
+    const double s = lap - std::floor(lap);  // position in the lap, [0, 1)
+    Vector3d p;
+    double gaze = 0.0;  // yaw of the view from world +x, rad
+    if (s < kLeg) {  // east leg, looking north
+      const double u = s / kLeg;
+      p = {x0 + u * (x1 - x0), c + kR, 0.0};
+      gaze = 0.25 * kTwoPi + 12.0 * kDeg * std::sin(2.0 * kTwoPi * u);
+    } else if (s < kLeg + kTurn) {  // east turn: north -> west -> south
+      const double u = (s - kLeg) / kTurn;
+      const double phi = 0.25 * kTwoPi - 0.5 * kTwoPi * u;
+      p = {x1 + kR * std::cos(phi), c + kR * std::sin(phi), 0.0};
+      gaze = 0.25 * kTwoPi + 0.5 * kTwoPi * smoothstep(u);
+    } else if (s < 2.0 * kLeg + kTurn) {  // west leg, looking south
+      const double u = (s - kLeg - kTurn) / kLeg;
+      p = {x1 - u * (x1 - x0), c - kR, 0.0};
+      gaze = 0.75 * kTwoPi + 12.0 * kDeg * std::sin(2.0 * kTwoPi * u);
+    } else {  // west turn: south -> east -> north
+      const double u = (s - 2.0 * kLeg - kTurn) / kTurn;
+      const double phi = 0.75 * kTwoPi - 0.5 * kTwoPi * u;
+      p = {x0 + kR * std::cos(phi), c + kR * std::sin(phi), 0.0};
+      gaze = 0.75 * kTwoPi + 0.5 * kTwoPi * smoothstep(u);
+    }
+    p.z() = hall.camera_zone.center().z() + 0.08 * std::sin(2.0 * kTwoPi * s);
+    const Vector3d forward(std::cos(gaze), std::sin(gaze), -0.22 + 0.05 * std::sin(3.0 * kTwoPi * s));
+    const Matrix3d R = look_along(forward) *
+                       Eigen::AngleAxisd(2.0 * kDeg * std::sin(4.0 * kTwoPi * s), Vector3d::UnitZ()).toRotationMatrix();
+    StampedPose pose;
+    pose.timestamp = static_cast<double>(i) / kSynthFrameRate;
+    pose.T_world_camera.linear() = R;
+    pose.T_world_camera.translation() = p;
+    trajectory.push_back(pose);
+  }
+  return trajectory;
+}
+
 }  // namespace
 
 const char* to_string(SynthPath path) { return path == SynthPath::loop ? "loop" : "wander"; }
@@ -81,7 +134,9 @@ bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why
 }
 
 Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options) {
-  if (options.path == SynthPath::loop) return loop_trajectory(room, options);
+  if (options.path == SynthPath::loop) {
+    return room.scene == SynthScene::hall ? hall_loop_trajectory(room, options) : loop_trajectory(room, options);
+  }
   synth::Rng rng(synth::stream_seed(options.seed, synth::Stream::trajectory));
   const Vector3d centre = room.camera_zone.center();
   const Vector3d half = 0.5 * room.camera_zone.sizes();

@@ -251,6 +251,51 @@ TEST(SynthTrajectory, LoopReturnsToItsStartEveryLap) {
   EXPECT_NE(why.find("spiral"), std::string::npos) << why;
 }
 
+// The hall's loop (make_hall, the loop path in it): back at the start pose every lap, always in
+// free space, farther from its start than twice the tracker's 4-m local-map radius (so a lap
+// leaves the local map: loop closure has drift to remove), at walking pace (3,600 frames in 2
+// laps: under 2 cm and 1.3 degrees a frame). Its instances are named uniquely.
+TEST(SynthTrajectory, HallLoopLeavesTheLocalMapAndReturnsEveryLap) {
+  for (std::uint64_t seed = 1; seed <= 3; ++seed) {
+    const SyntheticRoom hall = make_hall(seed);
+    EXPECT_EQ(hall.scene, SynthScene::hall);
+    EXPECT_GT(hall.size.x(), 12.0);
+    std::set<std::string> names;
+    for (const SynthObject& o : hall.objects) EXPECT_TRUE(names.insert(o.name).second) << o.name;
+    SynthOptions options;
+    options.seed = seed;
+    options.scene = SynthScene::hall;
+    options.frames = 3600;
+    options.path = SynthPath::loop;
+    options.laps = 2;
+    const Trajectory trajectory = make_trajectory(hall, options);
+    ASSERT_EQ(trajectory.size(), options.frames);
+    const Eigen::Isometry3d& start = trajectory[0].T_world_camera;
+    const Eigen::Isometry3d& lap = trajectory[1800].T_world_camera;
+    EXPECT_LT((lap.translation() - start.translation()).norm(), 1e-9) << "seed " << seed;
+    EXPECT_LT(rotation_angle(lap.linear().transpose() * start.linear()), 1e-9) << "seed " << seed;
+    double farthest = 0.0, step_max = 0.0, angle_max = 0.0;
+    for (std::size_t i = 0; i < trajectory.size(); ++i) {
+      const Eigen::Isometry3d& T = trajectory[i].T_world_camera;
+      ASSERT_TRUE(is_rigid(T.matrix(), 1e-9));
+      ASSERT_GE(synth_clearance(hall, T.translation()), SyntheticRoom::kCameraClearance)
+          << "seed " << seed << " frame " << i;
+      farthest = std::max(farthest, (T.translation() - start.translation()).norm());
+      if (i == 0) continue;
+      const Eigen::Isometry3d delta = trajectory[i - 1].T_world_camera.inverse() * T;
+      step_max = std::max(step_max, delta.translation().norm());
+      angle_max = std::max(angle_max, rotation_angle(delta.linear()));
+    }
+    EXPECT_GT(farthest, 8.0) << "seed " << seed << ": a lap must leave the 4-m local map";
+    EXPECT_LT(step_max, 0.02) << "seed " << seed;
+    EXPECT_LT(angle_max, 1.3 * kDeg) << "seed " << seed;
+  }
+  SynthScene scene;
+  std::string why;
+  EXPECT_FALSE(parse_synth_scene("castle", &scene, &why));
+  EXPECT_NE(why.find("castle"), std::string::npos) << why;
+}
+
 TEST(SynthNoise, KinectModel) {
   const SyntheticRoom room = make_room(1);
   SynthOptions options;

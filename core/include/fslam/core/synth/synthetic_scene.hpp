@@ -68,10 +68,19 @@ const char* to_string(SynthPath path);
 // Accepts "wander" and "loop".
 bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why);
 
+// The scene: one furnished room (about 4.5 x 4 m, smaller than the tracker's 4-m local map), or
+// a hall of three such room halves on each long side (about 13 x 8 m), whose loop path runs
+// along both sides so that a lap leaves the local map and comes back (loop closure with drift).
+enum class SynthScene { room, hall };
+const char* to_string(SynthScene scene);
+// Accepts "room" and "hall".
+bool parse_synth_scene(const std::string& text, SynthScene* scene, std::string* why);
+
 struct SynthOptions {
   std::size_t frames = 300;  // sequence length, frames at kSynthFrameRate
   std::uint64_t seed = 1;    // room layout, textures, trajectory and noise
   SynthNoise noise = SynthNoise::kinect;
+  SynthScene scene = SynthScene::room;
   SynthPath path = SynthPath::wander;
   int laps = 2;              // path = loop: the frames cover this many laps
   PinholeCamera camera = synth_default_camera();  // colour and depth share these intrinsics
@@ -132,6 +141,7 @@ struct SynthObject {
 };
 
 struct SyntheticRoom {
+  SynthScene scene = SynthScene::room;
   Eigen::Vector3d size = Eigen::Vector3d::Zero();  // interior extent (m): [0, size] in world
   Eigen::Vector3d light_position = Eigen::Vector3d::Zero();  // point light, world (m)
   std::vector<SynthObject> objects;  // walls, floor, ceiling first; instance id = index + 1
@@ -145,6 +155,13 @@ struct SyntheticRoom {
 // The room for `seed`: size, furniture placement, sizes, colours and textures vary with the
 // seed; the list of instances (names, classes, ids) is the same for every seed.
 SyntheticRoom make_room(std::uint64_t seed);
+// The hall for `seed`: three bays on the north side (y > size.y / 2), each furnished as the far
+// half of a room (table, chairs, things on the table, cabinet, shelf, plant, lamp, sofa, box;
+// names suffixed _n1 .. _n3), and three on the south side turned half a turn about the hall's
+// centre (_s1 .. _s3). The camera zone is the corridor between them.
+SyntheticRoom make_hall(std::uint64_t seed);
+// make_room or make_hall.
+SyntheticRoom make_scene(SynthScene scene, std::uint64_t seed);
 
 // Signed distance (m) from a world point to the nearest surface of the room: positive inside
 // the free space, negative inside an object or outside the room.
@@ -155,6 +172,9 @@ double synth_clearance(const SyntheticRoom& room, const Eigen::Vector3d& p_world
 // sweeps across the furniture (about 0.5-1.5 degrees per frame), plus a slight deterministic
 // shake. loop: the centre goes round an ellipse inside the zone, the view sweeping over the
 // furniture, `laps` times in `frames` frames; frame k * frames / laps is the start pose again.
+// In a hall the loop runs east along the corridor looking at the north bays, turns at the east
+// end looking back down the corridor, runs west looking at the south bays and turns at the west
+// end: the view turns 360 degrees a lap, never towards a bare end wall.
 Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options);
 
 struct SynthView {
