@@ -285,6 +285,27 @@ TEST_P(GicpBackend, RecoversKnownTransformsInARoom) {
   }
 }
 
+// The condition number (the tracker's lost test) is that of a rotation about the camera, so it
+// does not depend on where the world origin lies: the same registration 10 m from the origin
+// gives the same figure (rotating about the origin, it grew ~100x there).
+TEST_P(GicpBackend, ConditionNumberDoesNotDependOnTheWorldOrigin) {
+  const GaussianPoints world_target = room_points(12000, 31);
+  const GaussianPoints world_source = room_points(4000, 32);
+  std::mt19937 rng(33);
+  const Eigen::Isometry3d T_target_source = random_transform(rng, 2.0, 0.02);
+  const GaussianPoints source = transformed(world_source, T_target_source.inverse());
+  const GicpResult near = run_align(GetParam(), source, make_target(world_target), Eigen::Isometry3d::Identity(),
+                                    scene_config());
+  Eigen::Isometry3d shift = Eigen::Isometry3d::Identity();
+  shift.translation() = Eigen::Vector3d(8.0, -6.0, 0.5);
+  const GicpResult far = run_align(GetParam(), source, make_target(transformed(world_target, shift)), shift,
+                                   scene_config());
+  ASSERT_TRUE(near.converged && far.converged);
+  EXPECT_LT(pose_error(far.T_target_source, shift * near.T_target_source).metres, 1e-4);
+  EXPECT_NEAR(far.condition_number / near.condition_number, 1.0, 1e-3)
+      << near.condition_number << " near the origin, " << far.condition_number << " 10 m from it";
+}
+
 // The tracker's target: the same solver against the voxel-hash local map (whose search radius is
 // one voxel, so the initial errors are smaller).
 TEST_P(GicpBackend, RecoversKnownTransformsAgainstALocalMap) {

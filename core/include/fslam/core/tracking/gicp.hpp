@@ -68,7 +68,7 @@ struct GicpResult {
   double rms_residual = 0.0;        // metres, sqrt(mean |d|^2) over inliers (sigma_gicp of eq. keyframe_crit)
   double cost = 0.0;                // final robustified objective
   Matrix6d H = Matrix6d::Zero();    // Gauss-Newton Hessian at the solution ([rho; phi] order)
-  double condition_number = 0.0;    // lambda_max / lambda_min of H (inf if singular)
+  double condition_number = 0.0;    // lambda_max / lambda_min of H about the camera centre (inf if singular)
   bool features_used = false;       // the feature term of eq. feat_gicp was active
   // Mean over inliers of eq. feat_dist's similarity exp(-gamma d_f / s) at the solution: how
   // alike the frame's features and their matched targets' are (1: identical). NaN without features.
