@@ -490,6 +490,18 @@ void add_pictures(Rng& rng, double W, double D, RoomBuilder& builder) {
   picture("picture_3", {W, D - rng.uniform(0.65, 0.8), rng.uniform(1.3, 1.45)}, -0.5 * kPi);
 }
 
+// The far half of a W x D room (y > D / 2): table, chairs, the things on the table, cabinet,
+// shelf, plant, lamp, sofa and box; the table's placement.
+TablePlacement furnish_far_half(Rng& rng, double W, double D, RoomBuilder& builder) {
+  const TablePlacement table = add_table(rng, W, D, builder);
+  add_chairs(rng, table, builder);
+  add_table_top(rng, table, builder);
+  add_far_wall(rng, W, D, builder);
+  add_corners(rng, W, D, builder);
+  add_side_walls(rng, W, D, builder);
+  return table;
+}
+
 }  // namespace
 
 SyntheticRoom make_room(std::uint64_t seed) {
@@ -503,12 +515,7 @@ SyntheticRoom make_room(std::uint64_t seed) {
                                          Vector3d(0.5 * W + 0.45, 1.35, 1.6));
   RoomBuilder builder(&room);
   add_structure(rng, W, D, H, builder);
-  const TablePlacement table = add_table(rng, W, D, builder);
-  add_chairs(rng, table, builder);
-  add_table_top(rng, table, builder);
-  add_far_wall(rng, W, D, builder);
-  add_corners(rng, W, D, builder);
-  add_side_walls(rng, W, D, builder);
+  const TablePlacement table = furnish_far_half(rng, W, D, builder);
   add_pictures(rng, W, D, builder);
   room.light_position = {table.x, 0.5 * (table.y + 1.1), H - 0.25};
   room.look_at = {table.x, table.y + 0.4, 0.9};
@@ -532,12 +539,7 @@ SyntheticRoom make_hall(std::uint64_t seed) {
       // A bay is furnished as a room's far half, in a room of its own frame, then placed.
       SyntheticRoom bay;
       RoomBuilder bay_builder(&bay);
-      const TablePlacement table = add_table(rng, bay_w, bay_d, bay_builder);
-      add_chairs(rng, table, bay_builder);
-      add_table_top(rng, table, bay_builder);
-      add_far_wall(rng, bay_w, bay_d, bay_builder);
-      add_corners(rng, bay_w, bay_d, bay_builder);
-      add_side_walls(rng, bay_w, bay_d, bay_builder);
+      furnish_far_half(rng, bay_w, bay_d, bay_builder);
       Isometry3d T_hall_bay = pose({b * bay_w, D - bay_d, 0.0});
       if (side == 1) T_hall_bay = pose({W, D, 0.0}, kPi) * T_hall_bay;  // (x, y) -> (W - x, D - y)
       const std::string suffix = std::string(side == 0 ? "_n" : "_s") + std::to_string(b + 1);

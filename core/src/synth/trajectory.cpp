@@ -39,6 +39,15 @@ Matrix3d look_along(const Vector3d& forward) {
   return R;
 }
 
+// Frame i's pose: camera rotation R at centre p.
+StampedPose frame_pose(std::size_t i, const Matrix3d& R, const Vector3d& p) {
+  StampedPose pose;
+  pose.timestamp = static_cast<double>(i) / kSynthFrameRate;
+  pose.T_world_camera.linear() = R;
+  pose.T_world_camera.translation() = p;
+  return pose;
+}
+
 // The loop: periodic in the lap, so each lap ends where it began; the gaze sweeps over the
 // furniture as the wander's does (views of a bare wall alone leave GICP degenerate).
 Trajectory loop_trajectory(const SyntheticRoom& room, const SynthOptions& options) {
@@ -60,11 +69,7 @@ Trajectory loop_trajectory(const SyntheticRoom& room, const SynthOptions& option
     const Vector3d forward = look - p;
     const Matrix3d R = look_along(forward) *
                        Eigen::AngleAxisd(3.0 * kDeg * std::sin(4.0 * a), Vector3d::UnitZ()).toRotationMatrix();
-    StampedPose pose;
-    pose.timestamp = static_cast<double>(i) / kSynthFrameRate;
-    pose.T_world_camera.linear() = R;
-    pose.T_world_camera.translation() = p;
-    trajectory.push_back(pose);
+    trajectory.push_back(frame_pose(i, R, p));
   }
   return trajectory;
 }
@@ -113,11 +118,7 @@ Trajectory hall_loop_trajectory(const SyntheticRoom& hall, const SynthOptions& o
     const Vector3d forward(std::cos(gaze), std::sin(gaze), -0.22 + 0.05 * std::sin(3.0 * kTwoPi * s));
     const Matrix3d R = look_along(forward) *
                        Eigen::AngleAxisd(2.0 * kDeg * std::sin(4.0 * kTwoPi * s), Vector3d::UnitZ()).toRotationMatrix();
-    StampedPose pose;
-    pose.timestamp = static_cast<double>(i) / kSynthFrameRate;
-    pose.T_world_camera.linear() = R;
-    pose.T_world_camera.translation() = p;
-    trajectory.push_back(pose);
+    trajectory.push_back(frame_pose(i, R, p));
   }
   return trajectory;
 }
@@ -197,11 +198,7 @@ Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& option
         Eigen::AngleAxisd(yaw, Vector3d::UnitZ()).toRotationMatrix() * look_along(target - p) *
         Eigen::AngleAxisd(pitch.at(t), Vector3d::UnitX()).toRotationMatrix() *
         Eigen::AngleAxisd(roll.at(t), Vector3d::UnitZ()).toRotationMatrix() * so3_exp(shake_phi);
-    StampedPose pose;
-    pose.timestamp = t;
-    pose.T_world_camera.linear() = R;
-    pose.T_world_camera.translation() = p;
-    trajectory.push_back(pose);
+    trajectory.push_back(frame_pose(i, R, p));
   }
   return trajectory;
 }

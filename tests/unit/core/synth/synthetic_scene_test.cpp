@@ -210,6 +210,31 @@ TEST(SynthTrajectory, HandheldMotionInsideFreeSpace) {
 
 // The loop path returns exactly to its start pose after each lap, stays in free space, moves like
 // a slow hand-held camera and covers ground between revisits (loop-closure tests need both).
+// A loop trajectory's checks shared by the room's and the hall's: frame `lap` is the start pose
+// again, every pose is rigid and in free space; returns how far it goes from its start and its
+// largest step and turn between frames.
+struct LoopSteps {
+  double farthest = 0.0, step_max = 0.0, angle_max = 0.0;
+};
+LoopSteps check_loop(const SyntheticRoom& room, const Trajectory& trajectory, std::size_t lap, const std::string& what) {
+  LoopSteps steps;
+  const Eigen::Isometry3d& start = trajectory[0].T_world_camera;
+  const Eigen::Isometry3d& back = trajectory[lap].T_world_camera;
+  EXPECT_LT((back.translation() - start.translation()).norm(), 1e-9) << what;
+  EXPECT_LT(rotation_angle(back.linear().transpose() * start.linear()), 1e-9) << what;
+  for (std::size_t i = 0; i < trajectory.size(); ++i) {
+    const Eigen::Isometry3d& T = trajectory[i].T_world_camera;
+    EXPECT_TRUE(is_rigid(T.matrix(), 1e-9)) << what << " frame " << i;
+    EXPECT_GE(synth_clearance(room, T.translation()), SyntheticRoom::kCameraClearance) << what << " frame " << i;
+    steps.farthest = std::max(steps.farthest, (T.translation() - start.translation()).norm());
+    if (i == 0) continue;
+    const Eigen::Isometry3d delta = trajectory[i - 1].T_world_camera.inverse() * T;
+    steps.step_max = std::max(steps.step_max, delta.translation().norm());
+    steps.angle_max = std::max(steps.angle_max, rotation_angle(delta.linear()));
+  }
+  return steps;
+}
+
 TEST(SynthTrajectory, LoopReturnsToItsStartEveryLap) {
   for (std::uint64_t seed = 1; seed <= 5; ++seed) {
     const SyntheticRoom room = make_room(seed);
@@ -220,25 +245,10 @@ TEST(SynthTrajectory, LoopReturnsToItsStartEveryLap) {
     options.laps = 2;
     const Trajectory trajectory = make_trajectory(room, options);
     ASSERT_EQ(trajectory.size(), options.frames);
-    const Eigen::Isometry3d& start = trajectory[0].T_world_camera;
-    const Eigen::Isometry3d& lap = trajectory[600].T_world_camera;
-    EXPECT_LT((lap.translation() - start.translation()).norm(), 1e-9) << "seed " << seed;
-    EXPECT_LT(rotation_angle(lap.linear().transpose() * start.linear()), 1e-9) << "seed " << seed;
-    double farthest = 0.0, step_max = 0.0, angle_max = 0.0;
-    for (std::size_t i = 0; i < trajectory.size(); ++i) {
-      const Eigen::Isometry3d& T = trajectory[i].T_world_camera;
-      ASSERT_TRUE(is_rigid(T.matrix(), 1e-9));
-      ASSERT_GE(synth_clearance(room, T.translation()), SyntheticRoom::kCameraClearance)
-          << "seed " << seed << " frame " << i;
-      farthest = std::max(farthest, (T.translation() - start.translation()).norm());
-      if (i == 0) continue;
-      const Eigen::Isometry3d delta = trajectory[i - 1].T_world_camera.inverse() * T;
-      step_max = std::max(step_max, delta.translation().norm());
-      angle_max = std::max(angle_max, rotation_angle(delta.linear()));
-    }
-    EXPECT_GT(farthest, 0.3) << "seed " << seed << ": the loop must leave its start";
-    EXPECT_LT(step_max, 0.015) << "seed " << seed;
-    EXPECT_LT(angle_max, 2.2 * kDeg) << "seed " << seed;
+    const LoopSteps steps = check_loop(room, trajectory, 600, "seed " + std::to_string(seed));
+    EXPECT_GT(steps.farthest, 0.3) << "seed " << seed << ": the loop must leave its start";
+    EXPECT_LT(steps.step_max, 0.015) << "seed " << seed;
+    EXPECT_LT(steps.angle_max, 2.2 * kDeg) << "seed " << seed;
   }
   SynthOptions bad;
   bad.path = SynthPath::loop;
@@ -270,25 +280,10 @@ TEST(SynthTrajectory, HallLoopLeavesTheLocalMapAndReturnsEveryLap) {
     options.laps = 2;
     const Trajectory trajectory = make_trajectory(hall, options);
     ASSERT_EQ(trajectory.size(), options.frames);
-    const Eigen::Isometry3d& start = trajectory[0].T_world_camera;
-    const Eigen::Isometry3d& lap = trajectory[1800].T_world_camera;
-    EXPECT_LT((lap.translation() - start.translation()).norm(), 1e-9) << "seed " << seed;
-    EXPECT_LT(rotation_angle(lap.linear().transpose() * start.linear()), 1e-9) << "seed " << seed;
-    double farthest = 0.0, step_max = 0.0, angle_max = 0.0;
-    for (std::size_t i = 0; i < trajectory.size(); ++i) {
-      const Eigen::Isometry3d& T = trajectory[i].T_world_camera;
-      ASSERT_TRUE(is_rigid(T.matrix(), 1e-9));
-      ASSERT_GE(synth_clearance(hall, T.translation()), SyntheticRoom::kCameraClearance)
-          << "seed " << seed << " frame " << i;
-      farthest = std::max(farthest, (T.translation() - start.translation()).norm());
-      if (i == 0) continue;
-      const Eigen::Isometry3d delta = trajectory[i - 1].T_world_camera.inverse() * T;
-      step_max = std::max(step_max, delta.translation().norm());
-      angle_max = std::max(angle_max, rotation_angle(delta.linear()));
-    }
-    EXPECT_GT(farthest, 8.0) << "seed " << seed << ": a lap must leave the 4-m local map";
-    EXPECT_LT(step_max, 0.02) << "seed " << seed;
-    EXPECT_LT(angle_max, 1.3 * kDeg) << "seed " << seed;
+    const LoopSteps steps = check_loop(hall, trajectory, 1800, "hall seed " + std::to_string(seed));
+    EXPECT_GT(steps.farthest, 8.0) << "seed " << seed << ": a lap must leave the 4-m local map";
+    EXPECT_LT(steps.step_max, 0.02) << "seed " << seed;
+    EXPECT_LT(steps.angle_max, 1.3 * kDeg) << "seed " << seed;
   }
   SynthScene scene;
   std::string why;
