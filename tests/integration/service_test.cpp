@@ -1097,10 +1097,10 @@ TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
                         &out, &err),
             0)
       << err;
-  const pid_t server = start_server("--prefix " + prefix +
-                                        " --set loop_closure.enabled=true --set loop_closure.min_frame_gap=100",
-                                    dir + "/server.log");
-  ASSERT_GT(server, 0) << "fslam-server did not start";
+  // Scoped: a failed assertion below must not leave the server running (one did under ASan).
+  test::ScopedServer server("--prefix " + prefix + " --set loop_closure.enabled=true --set loop_closure.min_frame_gap=100",
+                            dir + "/server.log");
+  ASSERT_GT(server.pid(), 0) << "fslam-server did not start";
   auto dataset = core::open_dataset(dir + "/seq", core::DatasetOptions{}, &why);
   ASSERT_TRUE(dataset) << why;
   const std::size_t n = dataset->size();
@@ -1183,7 +1183,7 @@ TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
   double coverage = 0.0;
   EXPECT_LT(mean_depth_error(*depth, q.depth_scale, first.depth, &coverage), 0.03) << "metres";
   EXPECT_GT(coverage, 0.8);
-  stop_process(server);
+  server.stop();
 }
 
 }  // namespace
