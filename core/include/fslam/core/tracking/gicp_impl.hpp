@@ -206,8 +206,8 @@ inline double condition_number(const Matrix6d& H) {
 // H (of the left perturbation exp(xi) T: rotation about the world origin) for a perturbation
 // that rotates about `centre` instead: xi = A xi_c with A = [I hat(centre); 0 I], H_c = A^T H A.
 // About the camera centre the rotation columns scale with the scene's depth, not with how far
-// the camera is from the world origin: the condition number of H itself grew about 100x for a
-// camera 10 m from it (the synthetic hall's loop was declared lost there).
+// the camera is from the world origin: H's own rotation columns grow with that distance, and
+// the synthetic hall's loop, 8-10 m out, was declared lost there.
 inline Matrix6d about_point(const Matrix6d& H, const Eigen::Vector3d& centre) {
   Matrix6d A = Matrix6d::Identity();
   A.block<3, 3>(0, 3) = hat(centre);
