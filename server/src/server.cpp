@@ -29,6 +29,16 @@ using Clock = std::chrono::steady_clock;
 // which a client sends at most 32 at a time (Client::kMaxCallsInFlight).
 constexpr std::int32_t kPosesUnacknowledged = 4096, kResultsUnacknowledged = 1024;
 
+// A status sample of (session, map_name) with every other string empty and every number zero;
+// the strings must outlive it (the IDL's are char*).
+fslam_proto_SessionStatus keyed_status(std::string& session, std::string& map_name, std::string& empty) {
+  fslam_proto_SessionStatus st{};
+  st.session = session.data();
+  st.map_name = map_name.data();
+  st.last_drop_reason = st.last_skip_reason = st.frame_policy = st.mode = empty.data();
+  return st;
+}
+
 std::uint64_t resident_bytes() {
   long pages = 0, resident = 0;
   if (FILE* f = std::fopen("/proc/self/statm", "r")) {
@@ -237,14 +247,8 @@ void Server::publish_status() {
     keys.emplace(report.session, report.map_name);
   }
   for (const auto& map : idle) {
-    fslam_proto_SessionStatus st{};
     std::string empty, name = map->name;
-    st.session = empty.data();
-    st.map_name = name.data();
-    st.last_drop_reason = empty.data();
-    st.last_skip_reason = empty.data();
-    st.frame_policy = empty.data();
-    st.mode = empty.data();
+    fslam_proto_SessionStatus st = keyed_status(empty, name, empty);
     describe_map(*map, &st);
     dds_write(status_writer_.get(), &st);
     keys.emplace(std::string(), map->name);
@@ -254,10 +258,7 @@ void Server::publish_status() {
   for (const auto& [session, map_name] : status_keys_) {
     if (keys.count({session, map_name})) continue;
     std::string s = session, m = map_name, empty;
-    fslam_proto_SessionStatus key{};
-    key.session = s.data();
-    key.map_name = m.data();
-    key.last_drop_reason = key.last_skip_reason = key.frame_policy = key.mode = empty.data();
+    const fslam_proto_SessionStatus key = keyed_status(s, m, empty);
     dds_unregister_instance(status_writer_.get(), &key);
   }
   status_keys_ = std::move(keys);

@@ -11,7 +11,6 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
 #include <string>
 #include <thread>
 
@@ -19,18 +18,13 @@
 
 #include "fslam/client/dds.hpp"
 #include "fslam/proto/types.h"
+#include "proc_status.hpp"
 
 namespace {
 
 using Clock = std::chrono::steady_clock;
 
-long resident_kib() {
-  std::ifstream status("/proc/self/status");
-  std::string line;
-  while (std::getline(status, line))
-    if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
-  return -1;
-}
+long resident_kib() { return fslam::bench::proc_status("self", "VmRSS"); }
 
 }  // namespace
 

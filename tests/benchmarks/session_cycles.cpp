@@ -15,20 +15,13 @@
 #include <CLI/CLI.hpp>
 
 #include "fslam/client/client.hpp"
+#include "proc_status.hpp"
 
 namespace {
 
-// A field of /proc/PID/status in KiB (or a count), -1 when absent.
-long proc_status(int pid, const std::string& field) {
-  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
-  std::string line;
-  while (std::getline(status, line))
-    if (line.rfind(field + ":", 0) == 0) return std::stol(line.substr(field.size() + 1));
-  return -1;
-}
-
-long proc_mappings(int pid) {
-  std::ifstream maps("/proc/" + std::to_string(pid) + "/maps");
+// Lines of /proc/PID/maps: the process's memory mappings.
+long proc_mappings(const std::string& pid) {
+  std::ifstream maps("/proc/" + pid + "/maps");
   long n = 0;
   for (std::string line; std::getline(maps, line);) ++n;
   return n;
@@ -51,11 +44,12 @@ int main(int argc, char** argv) {
   std::deque<std::string> open;
   std::string why;
   const auto t0 = std::chrono::steady_clock::now();
+  using fslam::bench::proc_status;
+  const std::string pid = std::to_string(server_pid);
   const auto report = [&](int done) {
     const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::printf("cycles=%d t=%.0fs resident=%ld KiB virtual=%ld KiB mappings=%ld threads=%ld\n", done, s,
-                proc_status(server_pid, "VmRSS"), proc_status(server_pid, "VmSize"), proc_mappings(server_pid),
-                proc_status(server_pid, "Threads"));
+                proc_status(pid, "VmRSS"), proc_status(pid, "VmSize"), proc_mappings(pid), proc_status(pid, "Threads"));
     std::fflush(stdout);
   };
   fslam::client::SessionOptions localise;
