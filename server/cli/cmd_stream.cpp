@@ -142,6 +142,7 @@ struct StreamOutcome {
   std::size_t lost = 0;           // localise, extend: frames lost (counted, not in trajectory)
   std::size_t views = 0;          // localise --views: renders received at localised poses
   double elapsed = 0.0;  // seconds from the first frame to the last pose
+  std::string close_error;  // empty when the server confirmed the close
 };
 
 // Prints the outcome, writes --out and --report; the exit code.
@@ -164,7 +165,7 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
                            {"skipped", o.skipped},      {"errors", o.errors},
                            {"no_answer", o.missing},    {"seconds_to_last_pose", o.elapsed},
                            {"policy", args.policy},     {"rate", args.rate},
-                           {"mode", args.mode},
+                           {"mode", args.mode},         {"closed", o.close_error.empty()},
                            {"latency", latency_json(latency)}};
   report["tracked_frame_ids"] = tracked_ids;
   if (dataset.has_ground_truth() && !o.trajectory.empty()) {
@@ -209,6 +210,12 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
   // Skips are the live policy working; errors and frames with no outcome are failures.
   if (o.errors > 0) return fail(std::to_string(o.errors) + " frame(s) got an error from the server");
   if (o.missing > 0) return fail(std::to_string(o.missing) + " of " + std::to_string(n) + " frames got no answer");
+  // The poses above are complete, but the map is not known to be: the server may still be
+  // mapping (or refining) what it accepted. It finishes and keeps the map; a caller that reads,
+  // saves or compares the map next must not take this run as done.
+  if (!o.close_error.empty())
+    return fail("close" + (args.refine > 0 ? " with --refine " + std::to_string(args.refine) : std::string()) +
+                ": " + o.close_error + " (the map may still be being mapped; raise --timeout)");
   return 0;
 }
 
@@ -385,11 +392,9 @@ int run_stream(const StreamArgs& args) {
   }
   // Closing waits for the server to finish mapping what it accepted (and to refine, with --refine).
   if (args.refine > 0) std::fprintf(stderr, "closing: the server maps what is left, then refines %u steps\n", args.refine);
-  if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why, args.refine)) {
-    std::fprintf(stderr, "close: %s\n", why.c_str());
-    if (args.refine > 0) return fail("close with --refine " + std::to_string(args.refine) + ": " + why);
-  }
   StreamOutcome outcome;
+  if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why, args.refine))
+    outcome.close_error = why;
   std::vector<std::uint64_t> tracked_ids;
   {
     std::lock_guard<std::mutex> lock(mutex);
@@ -459,7 +464,8 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
                   "waiting), queue (track every frame), or the server's default")
       ->capture_default_str();
   app->add_option("--timeout", args->timeout_s,
-                  "Seconds to wait for the last poses, and for the server to take a frame (flow control)")
+                  "Seconds to wait for the last poses, and for the server to take a frame (flow control); "
+                  "the close waits at least 30 s (the server maps what is left first)")
       ->capture_default_str();
   app->add_option("--window", args->window,
                   "With --policy queue: at most this many frames sent and not answered yet (the "

@@ -163,6 +163,7 @@ void Server::deactivate() {
     stop_ = true;
     dds_waitset_set_trigger(waitset_.get(), true);
     ingest_thread_.join();
+    close_frame_reader();
   }
   health_.reset();  // not ready while draining
   if (maps_) maps_->stop_refining();  // a refinement running ends within a step, saying so
@@ -172,6 +173,26 @@ void Server::deactivate() {
   if (sessions_) sessions_->close_all();
   if (!configured_ || config_.map_dir.empty() || !config_.save_maps_at_shutdown) return;
   maps_->save_changed_maps();
+}
+
+void Server::close_frame_reader() {
+  // Frames that arrive once ingest has stopped are not accepted (no pose, no error). They are
+  // taken and dropped while the reader is deleted: a full keep-all reader makes Cyclone's delivery
+  // wait for room, and the reader's deletion waits for that delivery, for as long as a client
+  // keeps streaming (measured: SIGTERM took 52 s with a client streaming; docs/reliability.md).
+  const dds_entity_t reader = frame_reader_.get();
+  std::atomic<bool> deleted{false};
+  std::atomic<int> dropped{0};
+  std::thread drain([&] {
+    while (!deleted) {
+      dropped += client::take_each<fslam_proto_Frame>(reader, [](const fslam_proto_Frame&) {});
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  });
+  frame_reader_.reset();
+  deleted = true;
+  drain.join();
+  if (dropped > 0) log(std::to_string(dropped.load()) + " frame(s) that came after the stop were not taken");
 }
 
 void Server::cleanup() {

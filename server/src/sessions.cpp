@@ -309,8 +309,8 @@ void Sessions::start_threads(Session* raw) {
 void Sessions::close_later(std::unique_ptr<Session> session, std::string client, std::uint64_t request_id,
                            std::string answer, std::uint32_t refine_steps) {
   const std::string map = session->map->name;
-  start_closer([this, owned = std::shared_ptr<Session>(std::move(session)), client, map, request_id, answer,
-                refine_steps]() mutable {
+  auto owned = std::shared_ptr<Session>(std::move(session));
+  start_closer(owned, [this, owned, client, map, request_id, answer, refine_steps]() mutable {
     finish_session(owned.get());
     // Post-trajectory refinement at close (paper): the session is closed either way.
     std::string why;
@@ -320,7 +320,7 @@ void Sessions::close_later(std::unique_ptr<Session> session, std::string client,
   });
 }
 
-void Sessions::start_closer(std::function<void()> work) {
+void Sessions::start_closer(const std::shared_ptr<Session>& session, std::function<void()> work) {
   auto done = std::make_shared<std::atomic<bool>>(false);
   std::lock_guard<std::mutex> lock(mutex_);
   for (auto it = closers_.begin(); it != closers_.end();) {
@@ -335,7 +335,7 @@ void Sessions::start_closer(std::function<void()> work) {
                         work();
                         *done = true;
                       }),
-                      done});
+                      done, session});
 }
 
 void Sessions::close_idle(double lease_s) {
@@ -387,7 +387,8 @@ void Sessions::withdraw_map(const std::string& name, const std::string& reason) 
     const std::string session = s->name;
     replies_.result(session.c_str(), 0, name, "map '" + name + "' " + reason + "; session '" +
                                                   session + "' is closed here");
-    start_closer([this, owned = std::shared_ptr<Session>(std::move(s))] { finish_session(owned.get()); });
+    auto owned = std::shared_ptr<Session>(std::move(s));
+    start_closer(owned, [this, owned] { finish_session(owned.get()); });
   }
 }
 
@@ -409,16 +410,18 @@ void Sessions::finish_session(Session* s) {
 
 void Sessions::close_all() {
   std::map<std::string, std::unique_ptr<Session>> sessions;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    sessions.swap(sessions_);
-  }
-  for (auto& [name, s] : sessions) finish_session(s.get());
   std::vector<Closer> closers;
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    sessions.swap(sessions_);
     closers.swap(closers_);
   }
+  // Shutdown keeps every accepted frame but not every optimisation step: the keyframes waiting
+  // for a mapper go in unoptimised, so SIGTERM is honoured within seconds (docs/reliability.md).
+  for (auto& [name, s] : sessions) s->pipeline->hurry_mapping();
+  for (Closer& c : closers)
+    if (const std::shared_ptr<Session> s = c.session.lock()) s->pipeline->hurry_mapping();
+  for (auto& [name, s] : sessions) finish_session(s.get());
   for (Closer& c : closers) c.thread.join();
 }
 

@@ -101,7 +101,7 @@ class Sessions {
                    std::string answer = "", std::uint32_t refine_steps = 0);
   // Starts `work` on a closer thread; joins the closers that have finished (so that sessions
   // opened and closed without end do not pile up threads).
-  void start_closer(std::function<void()> work);
+  void start_closer(const std::shared_ptr<Session>& session, std::function<void()> work);
   void finish_session(Session* session);
   // A session's frame threads: decode + prepare (features, source Gaussians), then register;
   // or one thread doing both (server.pipelined_tracking false).
@@ -132,6 +132,7 @@ class Sessions {
   struct Closer {
     std::thread thread;
     std::shared_ptr<std::atomic<bool>> done;
+    std::weak_ptr<Session> session;  // the one it drains (shutdown hurries its mapper)
   };
   std::vector<Closer> closers_;  // sessions being drained after a close
   mutable std::mutex listener_mutex_;

@@ -12,6 +12,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <utility>
 
 #include "test_support.hpp"
 
@@ -65,6 +66,8 @@ class ScopedServer {
     stop_process(pid_);
     pid_ = -1;
   }
+  // The caller stops the process from here on (its own way, timed, say).
+  pid_t release() { return std::exchange(pid_, -1); }
 
  private:
   pid_t pid_;

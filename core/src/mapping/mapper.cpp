@@ -645,7 +645,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
 
   t0 = std::chrono::steady_clock::now();
   reset_round();
-  for (int it = 0; it < config_.iterations_per_keyframe && !map_.empty(); ++it) {
+  for (int it = 0; it < config_.iterations_per_keyframe && !map_.empty() && !hurry_; ++it) {
     if (!step(keyframes_[sample_keyframe(false)], &s.last_losses, why)) return false;
     ++s.iterations;
   }
@@ -664,7 +664,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
 }
 
 bool Mapper::optimise(int iterations, std::string* why) {
-  for (int it = 0; it < iterations && !keyframes_.empty() && !map_.empty(); ++it) {
+  for (int it = 0; it < iterations && !keyframes_.empty() && !map_.empty() && !hurry_; ++it) {
     if (!step(keyframes_[sample_keyframe(false)], nullptr, why)) return false;
   }
   publish();

@@ -150,6 +150,8 @@ class Server {
   // saves the changed maps (when configured).
   void deactivate();
   void cleanup();
+  // Deletes the frame reader while dropping what still arrives (server.cpp says why).
+  void close_frame_reader();
   ServerStats stats() const;
   // Where lifecycle messages go (map loaded / saved, failures); default: nowhere.
   void set_log(std::function<void(const std::string&)> log);

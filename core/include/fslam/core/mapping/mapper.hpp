@@ -203,6 +203,10 @@ class Mapper {
   bool add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats, std::string* why);
   // Extra gradient steps over sampled keyframes (idle time in real-time mode), then publishes.
   bool optimise(int iterations, std::string* why);
+  // Shutdown: from now on add_keyframe inserts and publishes without gradient steps (one running
+  // stops within a step) and optimise only publishes. Every keyframe is still in the map; the
+  // optimisation skipped is left to a later session or refinement. Any thread.
+  void hurry() { hurry_ = true; }
   // Post-trajectory refinement: recompute the 3D filter over all keyframes, then `steps` steps
   // with keyframes drawn uniformly; no insertion or importance pruning.
   // progress (optional) is called every few steps with (steps done, steps). When `stop` (optional)
@@ -319,6 +323,7 @@ class Mapper {
   GaussianGradients grads_;
   std::optional<FeatureAutoencoder> decoder_;  // online heads of the decoded L_feat
   std::int64_t published_heads_steps_ = -1;    // decoder_'s online steps at the last copy
+  std::atomic<bool> hurry_{false};             // hurry(): no more gradient steps
   mutable std::mutex heads_mutex_;             // guards heads_ and kept_images_
   std::shared_ptr<const FeatureAutoencoder> heads_;
   std::shared_ptr<const std::vector<KeyframeImages>> kept_images_ = std::make_shared<std::vector<KeyframeImages>>();

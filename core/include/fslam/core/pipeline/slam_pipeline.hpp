@@ -116,6 +116,9 @@ class SlamPipeline {
                    std::string* why);
   // No more frames: the mapping loop drains its queue and returns.
   void finish();
+  // Shutdown: the keyframes still queued, and the one being mapped, go into the map without
+  // their optimisation steps (Mapper::hurry), so a drain takes a fraction of a second each.
+  void hurry_mapping() { mapper_.hurry(); }
 
   // After run_mapping returned: post-trajectory refinement (paper), `steps` steps.
   bool refine(int steps, std::string* why, const std::function<void(int, int)>& progress = nullptr,
