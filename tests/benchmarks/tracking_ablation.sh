@@ -23,6 +23,10 @@ at the solution; 1: the frame's features equal their matched targets'). Rows (--
   gauss-nbr        as gauss, target covariances from the neighbouring means
                    (tracker.map_target.covariance=neighbours) instead of each Gaussian's disc
   gauss-feat-nbr   as gauss-feat, covariances from the neighbouring means
+  gauss-wait       as gauss, tracking waits after each keyframe for the target that contains it
+                   (tracker.map_target.wait_for_mapper: no lag behind the tracker; not real time)
+  gauss-feat-wait  as gauss-feat, tracking waits for the target (the paper's formulation, no lag)
+  gauss-noprune    as gauss, no importance pruning (mapper.prune_percentile_*=0)
 Stretches (--stretches picks some): rk0-599, rk0-299, rk300-599 (7-Scenes redkitchen), png50
 (redkitchen frames 150-199, PNG colour), synth (a `fslam synth` room, 300 frames, Kinect noise,
 seed --synth-seed).
@@ -85,6 +89,9 @@ row_args() {
     gauss-feat-latent) echo "${gauss[@]}" --features "${WEIGHTS}" --set mapper.feature_loss=latent ;;
     gauss-nbr) echo "${gauss[@]}" --set tracker.map_target.covariance=neighbours ;;
     gauss-feat-nbr) echo "${gauss[@]}" --features "${WEIGHTS}" --set tracker.map_target.covariance=neighbours ;;
+    gauss-wait) echo "${gauss[@]}" --set tracker.map_target.wait_for_mapper=true ;;
+    gauss-feat-wait) echo "${gauss[@]}" --features "${WEIGHTS}" --set tracker.map_target.wait_for_mapper=true ;;
+    gauss-noprune) echo "${gauss[@]}" --set mapper.prune_percentile_mapping=0 --set mapper.prune_percentile_tracking=0 ;;
     *) echo "unknown row: $1" >&2; return 1 ;;
   esac
 }

@@ -159,6 +159,42 @@ TEST_F(SynthPipeline, RealTimeKeyframeQueueIsBoundedAndCountsWhatItLeavesOut) {
   EXPECT_EQ(pipeline.queued_keyframes(), 0u);
 }
 
+// tracker.map_target.wait_for_mapper (benchmarks): the frame after a keyframe is tracked only
+// once the mapper has mapped that keyframe and built the target from it, however slow the mapper
+// (here 60 steps per keyframe, hundreds of ms); every later frame sees every keyframe before it in
+// the map. Without the wait the tracker runs ahead, keyframes behind the map.
+TEST_F(SynthPipeline, GaussianTargetWaitsForTheKeyframesMapVersionWhenAsked) {
+  std::string why;
+  const auto dataset = frames("0:30", &why);
+  ASSERT_TRUE(dataset) << why;
+  core::PipelineConfig config;
+  config.tracker.target = core::TrackingTarget::gaussians;
+  config.tracker.map_target.wait_for_mapper = true;
+  config.mapper.insert_from = core::MapperConfig::InsertFrom::source;
+  config.mapper.iterations_per_keyframe = 60;
+  core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
+  bool mapping_ok = false;
+  std::string mapping_why;
+  std::thread mapping([&] { mapping_ok = pipeline.run_mapping(nullptr, &mapping_why); });
+  int keyframes = 0;
+  for (std::size_t i = 0; i < dataset->size(); ++i) {
+    core::RgbdFrame frame;
+    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
+    core::TrackingResult result;
+    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    // One map version per keyframe mapped (no idle steps outside real time): by the time this
+    // frame was tracked, every keyframe before it was in the map.
+    if (i > 0) {
+      EXPECT_GE(pipeline.mapper().versions().version_number(), static_cast<std::uint64_t>(keyframes)) << i;
+    }
+    keyframes += result.keyframe ? 1 : 0;
+  }
+  pipeline.finish();
+  mapping.join();
+  EXPECT_TRUE(mapping_ok) << mapping_why;
+  EXPECT_GE(keyframes, 3);
+}
+
 // Real time with nothing left to map: idle optimisation goes on for max_idle_iterations after the
 // newest keyframe (one map version per idle_iterations), then the mapping thread sleeps and the
 // map version stays still until a keyframe or finish() wakes it.

@@ -158,7 +158,12 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
     std::shared_ptr<const LocalMap> target;
     std::int64_t last_keyframe = -1;
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      std::unique_lock<std::mutex> lock(mutex_);
+      if (config_.tracker.map_target.wait_for_mapper && keyframe_awaited_ >= 0) {
+        map_target_published_.wait_for(lock, std::chrono::seconds(120),
+                                       [&] { return map_target_keyframe_ >= keyframe_awaited_; });
+        keyframe_awaited_ = -1;
+      }
       if (map_target_serial_ != map_target_taken_) {
         target = map_target_;
         last_keyframe = map_target_keyframe_;
@@ -224,6 +229,7 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
       if (!pyramid_waiting && tracking_pyramid_is_mappers()) queued.pyramid = std::move(prepared.pyramid);
       queue_.push_back(std::move(queued));
       bound_queue_locked();
+      keyframe_awaited_ = frame.id;
     }
     wake_.notify_one();
   }
@@ -297,6 +303,7 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;
   ++map_target_serial_;
+  map_target_published_.notify_all();
 }
 
 bool SlamPipeline::tracking_pyramid_is_mappers() const {

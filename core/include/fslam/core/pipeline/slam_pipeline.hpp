@@ -194,6 +194,8 @@ class SlamPipeline {
   std::int64_t map_target_keyframe_ = -1;               // guarded by mutex_
   std::uint64_t map_target_serial_ = 0;                 // guarded by mutex_
   std::uint64_t map_target_taken_ = 0;                  // tracking side only
+  std::int64_t keyframe_awaited_ = -1;  // tracking side: map_target.wait_for_mapper waits for it
+  std::condition_variable map_target_published_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<QueuedKeyframe> queue_;

@@ -26,6 +26,10 @@ struct MapTargetConfig {
   float min_opacity = 0.1f;          // effective opacity below which a Gaussian is no target
   float min_point_distance = 0.015f; // metres; thinning of the target (LocalMap), densest first
   MapTargetCovariance covariance = MapTargetCovariance::disc;
+  // Benchmarks only, not real time: before the frame after a keyframe, tracking waits (up to
+  // 120 s) for the target built from the map version that contains that keyframe, so the target
+  // never lags the tracker (docs/tracking.md "Why the Gaussian target loses").
+  bool wait_for_mapper = false;
   bool is_valid(std::string* why = nullptr) const;
 };
 
