@@ -23,6 +23,20 @@ inline std::filesystem::path bin_dir() { return FSLAM_TEST_BIN_DIR; }
 // Forces every DDS participant the test creates onto the loopback profile (never the network).
 inline void use_loopback_dds() { setenv("CYCLONEDDS_URI", "file://" FSLAM_TEST_LOOPBACK_PROFILE, 1); }
 
+// How many times slower than a plain build this one runs: deadlines of tests that wait for the
+// server are multiplied by it, so that a sanitizer build on two cores fails on what it finds, not
+// on time. $FSLAM_TEST_TIME_SCALE (>= 1), else the build's default (tests/CMakeLists.txt: 1, 4
+// with ASan, 8 with TSan).
+inline double time_scale() {
+  if (const char* env = std::getenv("FSLAM_TEST_TIME_SCALE")) {
+    const double scale = std::atof(env);
+    if (scale >= 1.0) return scale;
+  }
+  return FSLAM_TEST_DEFAULT_TIME_SCALE;
+}
+inline int scaled_ms(int ms) { return static_cast<int>(ms * time_scale()); }
+inline int scaled_s(int s) { return static_cast<int>(s * time_scale()); }
+
 // A fresh empty folder under the system temp dir, unique per test and process (ctest runs tests
 // of one binary in parallel processes).
 inline std::filesystem::path fresh_temp_dir(const std::string& name) {

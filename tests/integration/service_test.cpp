@@ -103,8 +103,8 @@ client::FrameInput frame_input(const core::RgbdFrame& f, std::uint64_t id, const
 int stream_sequence(const std::string& seq, const std::string& prefix, const std::string& session,
                     const std::string& args, std::string* out) {
   std::string err;
-  const int rc = run_command(fslam_bin() + " stream --policy queue --dataset " + seq + " --prefix " + prefix +
-                                 " --session " + session + " " + args,
+  const int rc = run_command(fslam_bin() + " stream --policy queue --timeout " + std::to_string(test::scaled_s(60)) +
+                                 " --dataset " + seq + " --prefix " + prefix + " --session " + session + " " + args,
                              out, &err);
   *out += err;
   return rc;
@@ -183,7 +183,7 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
   });
   client::SessionOptions live;
   live.policy = client::FramePolicy::live;
-  ASSERT_TRUE(c.open_session("live", "live", 10000, &why, live)) << why;
+  ASSERT_TRUE(c.open_session("live", "live", test::scaled_ms(10000), &why, live)) << why;
   for (std::size_t i = 0; i < kFrames; ++i) {
     ASSERT_TRUE(c.push_frame("live", frame_input(frames[i], i, depths[i]), &why)) << why;
   }
@@ -194,7 +194,7 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
-  ASSERT_TRUE(c.close_session("live", 30000, &why)) << why;
+  ASSERT_TRUE(c.close_session("live", test::scaled_ms(30000), &why)) << why;
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_EQ(outcomes.size(), kFrames) << "every frame gets an outcome";
   std::size_t skipped = 0;
@@ -250,7 +250,7 @@ TEST_F(Service, MalformedFramesGetErrorResults) {
   for (int i = 0; i < 500 && c.matched_servers() == 0; ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   ASSERT_TRUE(c.push_frame("never-opened", frame, &why)) << why;  // valid frame, unknown session
-  ASSERT_TRUE(c.open_session("b", "b", 10000, &why)) << why;
+  ASSERT_TRUE(c.open_session("b", "b", test::scaled_ms(10000), &why)) << why;
   frame.intrinsics.cx = 500.f;  // principal point outside the image
   frame.frame_id = 1;
   ASSERT_TRUE(c.push_frame("b", frame, &why)) << why;
@@ -283,8 +283,8 @@ TEST_F(Service, MalformedFramesGetErrorResults) {
     EXPECT_NE(status_b.last_drop_reason.find("intrinsics"), std::string::npos);
     EXPECT_GT(status_b.resident_bytes, 0u);
   }
-  EXPECT_TRUE(c.close_session("b", 30000, &why)) << why;
-  EXPECT_FALSE(c.close_session("b", 5000, &why));
+  EXPECT_TRUE(c.close_session("b", test::scaled_ms(30000), &why)) << why;
+  EXPECT_FALSE(c.close_session("b", test::scaled_ms(5000), &why));
   EXPECT_NE(why.find("unknown session"), std::string::npos) << why;
   EXPECT_EQ(kill(server_pid_, 0), 0) << "the server must survive bad input";
 }
@@ -294,7 +294,8 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
   auto stream = [&](const std::string& session, const std::string& frames) {
     return std::async(std::launch::async, [=] {
       std::string out, err;
-      const int rc = run_command(fslam_bin() + " stream --policy queue --dataset " + dir_ + "/seq --frames " + frames +
+      const int rc = run_command(fslam_bin() + " stream --policy queue --timeout " +
+                                     std::to_string(test::scaled_s(60)) + " --dataset " + dir_ + "/seq --frames " + frames +
                                      " --prefix " + prefix_ + " --session " + session + " --map map-" +
                                      session + " --rate 15 --report " + dir_ + "/" + session + ".json",
                                  &out, &err);
@@ -315,7 +316,7 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
       q.frame_id = std::string(map) == "map-one" ? 0 : 50;
       q.channels = client::kColour | client::kOpacity;
       client::RenderOutput out;
-      if (viewer.render(q, &out, 10000, &why)) ++renders_while_streaming;
+      if (viewer.render(q, &out, test::scaled_ms(10000), &why)) ++renders_while_streaming;
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
   }
@@ -333,14 +334,14 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
   auto dataset = core::open_dataset(dir_ + "/seq", options, &why);
   ASSERT_TRUE(dataset) << why;
   for (const auto& [map, frame] : {std::make_pair("map-one", 20), std::make_pair("map-two", 70)}) {
-    ASSERT_TRUE(viewer.attach_map(map, 10000, &why)) << why;
+    ASSERT_TRUE(viewer.attach_map(map, test::scaled_ms(10000), &why)) << why;
     client::RenderQuery q;
     q.map_name = map;
     q.from_frame = true;
     q.frame_id = static_cast<std::uint64_t>(frame);
     q.depth_scale = 1000.0f;
     client::RenderOutput out;
-    ASSERT_TRUE(viewer.render(q, &out, 20000, &why)) << why;
+    ASSERT_TRUE(viewer.render(q, &out, test::scaled_ms(20000), &why)) << why;
     ASSERT_EQ(out.images.size(), 4u);
     EXPECT_EQ(out.intrinsics.width, 640u);
     const client::RenderedImage* depth = channel(out, client::kDepth);
@@ -361,7 +362,7 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
   small.intrinsics = {250.f, 250.f, 159.5f, 119.5f, 320, 240};
   small.channels = client::kColour;
   client::RenderOutput out;
-  ASSERT_TRUE(viewer.render(small, &out, 20000, &why)) << why;
+  ASSERT_TRUE(viewer.render(small, &out, test::scaled_ms(20000), &why)) << why;
   ASSERT_EQ(out.images.size(), 1u);
   EXPECT_EQ(out.images[0].width, 320u);
   EXPECT_EQ(out.images[0].height, 240u);
@@ -413,7 +414,7 @@ TEST_F(Service, KilledClientLeavesTheServerServing) {
   q.channels = client::kOpacity;
   client::RenderOutput rendered;
   std::string why;
-  ASSERT_TRUE(watcher.render(q, &rendered, 20000, &why)) << why;
+  ASSERT_TRUE(watcher.render(q, &rendered, test::scaled_ms(20000), &why)) << why;
   EXPECT_GT(rendered.map_gaussians, 1000u);
 }
 
@@ -426,7 +427,7 @@ TEST_F(Service, ClosedSessionsStatusInstanceIsUnregistered) {
   client::Entity reader = client::make_reader(participant, topic, client::Delivery::best_effort);
   client::Client c(options_for(prefix_));
   std::string why;
-  ASSERT_TRUE(c.open_session("brief", "brief_map", 10000, &why)) << why;
+  ASSERT_TRUE(c.open_session("brief", "brief_map", test::scaled_ms(10000), &why)) << why;
   // Waits up to `seconds` for a status sample of session `session` (alive: valid, and its
   // instance is remembered; else that instance's unregistration).
   dds_instance_handle_t instance = 0;
@@ -452,7 +453,7 @@ TEST_F(Service, ClosedSessionsStatusInstanceIsUnregistered) {
     return false;
   };
   ASSERT_TRUE(wait_for("brief", true, 10.0)) << "no status for the open session";
-  ASSERT_TRUE(c.close_session("brief", 30000, &why)) << why;
+  ASSERT_TRUE(c.close_session("brief", test::scaled_ms(30000), &why)) << why;
   EXPECT_TRUE(wait_for("brief", false, 10.0)) << "the closed session's status instance was not unregistered";
 }
 
@@ -463,32 +464,32 @@ TEST_F(Service, MalformedRequestsGetErrorResults) {
   client::RenderQuery q;
   client::RenderOutput out;
   q.map_name = "no-such-map";
-  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_FALSE(c.render(q, &out, test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("no map named"), std::string::npos) << why;
-  EXPECT_FALSE(c.attach_map("no-such-map", 10000, &why));
+  EXPECT_FALSE(c.attach_map("no-such-map", test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("no map named"), std::string::npos) << why;
   // A map to aim at: ten frames.
   std::string out_text, err;
   ASSERT_EQ(stream_sequence(dir_ + "/seq", prefix_, "target", "--frames 0:10 --map target", &out_text), 0) << out_text;
   q.map_name = "target";
   q.rotation[3] = 2.0;  // not a unit quaternion
-  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_FALSE(c.render(q, &out, test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("quaternion"), std::string::npos) << why;
   q.rotation[3] = 1.0;
   q.channels = 64;  // no such channel
-  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_FALSE(c.render(q, &out, test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("channels"), std::string::npos) << why;
   q.channels = client::kColour;
   q.intrinsics = {500.f, 500.f, 50000.f, 50000.f, 100000, 100000};  // over the pixel limit
-  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_FALSE(c.render(q, &out, test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("limit"), std::string::npos) << why;
   q.intrinsics = {};
   q.from_frame = true;
   q.frame_id = 999;  // never tracked
-  EXPECT_FALSE(c.render(q, &out, 10000, &why));
+  EXPECT_FALSE(c.render(q, &out, test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("no tracked pose"), std::string::npos) << why;
   std::string folder;
-  EXPECT_FALSE(c.save_map("target", "", 10000, &folder, &why));  // this server has no map_dir
+  EXPECT_FALSE(c.save_map("target", "", test::scaled_ms(10000), &folder, &why));  // this server has no map_dir
   EXPECT_NE(why.find("map_dir"), std::string::npos) << why;
   EXPECT_EQ(kill(server_pid_, 0), 0);
 }
@@ -601,7 +602,7 @@ TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
     if (!s.session.empty()) streaming[s.session] = s.streaming;
     else streaming[s.map_name + "@idle"] = true;  // an idle map: served, no session streams into it
   });
-  ASSERT_TRUE(c.open_session("quiet", "quiet_map", 10000, &why)) << why;
+  ASSERT_TRUE(c.open_session("quiet", "quiet_map", test::scaled_ms(10000), &why)) << why;
   {  // three frames, then silence: a client killed mid-stream
     auto dataset = core::open_dataset(dir + "/seq", core::DatasetOptions{}, &why);
     ASSERT_TRUE(dataset) << why;
@@ -631,7 +632,7 @@ TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
   busy.join();
   EXPECT_TRUE(closed) << "the idle session was not closed within 30 s";
   EXPECT_EQ(stream_report(dir + "/busy.json").value("tracked", 0), 40) << "the streaming session was disturbed";
-  EXPECT_TRUE(c.attach_map("quiet_map", 10000, &why)) << why;  // its map is still served
+  EXPECT_TRUE(c.attach_map("quiet_map", test::scaled_ms(10000), &why)) << why;  // its map is still served
   std::ifstream log(dir + "/server.log");
   const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
   EXPECT_NE(text.find("session 'quiet' closed: no frame for 2 s (server.session_lease_s)"), std::string::npos);
@@ -653,15 +654,15 @@ TEST(ServiceLimits, SessionsMapsPromptsNamesAndDiskAreBounded) {
   ASSERT_GT(server.pid(), 0);
   ASSERT_EQ(stream_sequence(dir + "/seq", prefix, "s", "--map first", &out), 0) << out;
   client::Client c(options_for(prefix));
-  EXPECT_FALSE(c.open_session("bad", "../x", 10000, &why));
+  EXPECT_FALSE(c.open_session("bad", "../x", test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("may not start with '.'"), std::string::npos) << why;
-  EXPECT_FALSE(c.open_session("bad", "a/b", 10000, &why));
+  EXPECT_FALSE(c.open_session("bad", "a/b", test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("may hold only"), std::string::npos) << why;
-  ASSERT_TRUE(c.open_session("a", "second", 10000, &why)) << why;
-  EXPECT_FALSE(c.open_session("b", "third", 10000, &why));
+  ASSERT_TRUE(c.open_session("a", "second", test::scaled_ms(10000), &why)) << why;
+  EXPECT_FALSE(c.open_session("b", "third", test::scaled_ms(10000), &why));
   EXPECT_NE(why.find("server.max_sessions"), std::string::npos) << why;
-  ASSERT_TRUE(c.close_session("a", 30000, &why)) << why;
-  EXPECT_FALSE(c.open_session("b", "third", 10000, &why));  // "first" and "second" are held
+  ASSERT_TRUE(c.close_session("a", test::scaled_ms(30000), &why)) << why;
+  EXPECT_FALSE(c.open_session("b", "third", test::scaled_ms(10000), &why));  // "first" and "second" are held
   EXPECT_NE(why.find("server.max_maps"), std::string::npos) << why;
   client::SegmentQuery q;
   q.map_name = "first";
@@ -670,10 +671,10 @@ TEST(ServiceLimits, SessionsMapsPromptsNamesAndDiskAreBounded) {
   q.view.frame_id = 3;
   q.points = {10, 10, 20, 20, 30, 30};
   client::SegmentOutput seg;
-  EXPECT_FALSE(c.segment(q, &seg, 20000, &why));
+  EXPECT_FALSE(c.segment(q, &seg, test::scaled_ms(20000), &why));
   EXPECT_NE(why.find("server.max_prompts"), std::string::npos) << why;
   std::string folder;
-  EXPECT_FALSE(c.save_map("first", "", 30000, &folder, &why));
+  EXPECT_FALSE(c.save_map("first", "", test::scaled_ms(30000), &folder, &why));
   EXPECT_NE(why.find("server.min_free_disk_mb keeps 1000000000 MiB free"), std::string::npos) << why;
   EXPECT_FALSE(std::filesystem::exists(dir + "/maps/first")) << "a refused save wrote its map";
   EXPECT_FALSE(std::filesystem::exists(dir + "/maps/.first.saving"));
@@ -724,11 +725,11 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   q.frame_id = 10;
   {
     client::Client c(options_for(prefix));
-    ASSERT_TRUE(c.render(q, &before, 20000, &why)) << why;
+    ASSERT_TRUE(c.render(q, &before, test::scaled_ms(20000), &why)) << why;
     std::string folder;
-    ASSERT_TRUE(c.save_map("kept", "copy", 20000, &folder, &why)) << why;  // on request
+    ASSERT_TRUE(c.save_map("kept", "copy", test::scaled_ms(20000), &folder, &why)) << why;  // on request
     EXPECT_EQ(folder, dir + "/maps/copy");
-    EXPECT_FALSE(c.save_map("kept", "../outside", 20000, &folder, &why));
+    EXPECT_FALSE(c.save_map("kept", "../outside", test::scaled_ms(20000), &folder, &why));
     EXPECT_NE(why.find(".."), std::string::npos) << why;
   }
   const pid_t first = server->pid();
@@ -738,11 +739,11 @@ TEST(ServiceRestart, SavedMapIsServedAfterRestart) {
   ASSERT_GT(server->pid(), 0);
   {
     client::Client c(options_for(prefix));
-    ASSERT_TRUE(c.attach_map("kept", 20000, &why)) << why;
-    ASSERT_TRUE(c.render(q, &after, 20000, &why)) << why;
-    ASSERT_TRUE(c.attach_map("copy", 20000, &why)) << why;  // every saved folder is served
-    ASSERT_TRUE(c.load_map("again", "kept", 20000, &why)) << why;
-    EXPECT_FALSE(c.load_map("bad", "nothing-here", 20000, &why));
+    ASSERT_TRUE(c.attach_map("kept", test::scaled_ms(20000), &why)) << why;
+    ASSERT_TRUE(c.render(q, &after, test::scaled_ms(20000), &why)) << why;
+    ASSERT_TRUE(c.attach_map("copy", test::scaled_ms(20000), &why)) << why;  // every saved folder is served
+    ASSERT_TRUE(c.load_map("again", "kept", test::scaled_ms(20000), &why)) << why;
+    EXPECT_FALSE(c.load_map("bad", "nothing-here", test::scaled_ms(20000), &why));
   }
   server->stop();
   EXPECT_EQ(before.map_gaussians, after.map_gaussians);
@@ -783,13 +784,13 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   std::uint64_t gaussians_before = 0, version_before = 0;
   {
     client::Client c(options_for(prefix));
-    ASSERT_TRUE(c.attach_map("room", 20000, &why)) << why;
+    ASSERT_TRUE(c.attach_map("room", test::scaled_ms(20000), &why)) << why;
     client::RenderQuery q;
     q.map_name = "room";
     q.from_frame = true;
     q.frame_id = 0;
     client::RenderOutput r;
-    ASSERT_TRUE(c.render(q, &r, 20000, &why)) << why;
+    ASSERT_TRUE(c.render(q, &r, test::scaled_ms(20000), &why)) << why;
     gaussians_before = r.map_gaussians;
     version_before = r.map_version;
   }
@@ -818,7 +819,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     std::string qwhy;
     while (streaming) {
       client::RenderOutput r;
-      if (c.render(q, &r, 20000, &qwhy)) ++renders;
+      if (c.render(q, &r, test::scaled_ms(20000), &qwhy)) ++renders;
     }
   });
   const auto [rc1, out1] = first.get();
@@ -846,7 +847,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   ASSERT_TRUE(core::read_tum_trajectory(dir + "/ar1.tum", &localised, &why)) << why;
   ASSERT_FALSE(localised.empty());
   client::Client c(options_for(prefix));
-  ASSERT_TRUE(c.attach_map("room", 20000, &why)) << why;
+  ASSERT_TRUE(c.attach_map("room", test::scaled_ms(20000), &why)) << why;
   // The depth a request renders at ar1's localised pose of dataset frame `index` (false: the frame
   // was not localised, or no render came).
   const auto render_at_localised = [&](std::size_t index, core::RgbdFrame* frame, client::RenderOutput* r) {
@@ -863,7 +864,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     q.rotation[0] = rot.x(), q.rotation[1] = rot.y(), q.rotation[2] = rot.z(), q.rotation[3] = rot.w();
     q.channels = client::kDepth;
     q.depth_scale = 1000.0f;
-    return c.render(q, r, 20000, &rwhy) && channel(*r, client::kDepth) != nullptr;
+    return c.render(q, r, test::scaled_ms(20000), &rwhy) && channel(*r, client::kDepth) != nullptr;
   };
   for (const std::size_t index : {std::size_t{1}, std::size_t{49}, std::size_t{97}}) {
     core::RgbdFrame frame;
@@ -921,7 +922,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     // A map saved before keyframe images were (no keyframe_images.bin) is refused, saying why.
     std::filesystem::copy(dir + "/maps/room", dir + "/maps/old_room", std::filesystem::copy_options::recursive);
     std::filesystem::remove(dir + "/maps/old_room/keyframe_images.bin");
-    ASSERT_TRUE(c.load_map("old_room", "old_room", 20000, &why)) << why;
+    ASSERT_TRUE(c.load_map("old_room", "old_room", test::scaled_ms(20000), &why)) << why;
     std::string refused_err;
     EXPECT_NE(run_command(fslam_bin() + " refine-map --map old_room --steps 10 --prefix " + prefix, &out, &refused_err), 0);
     EXPECT_NE(refused_err.find("without keyframe images"), std::string::npos) << refused_err;
@@ -942,7 +943,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     std::string wwhy;
     while (extending) {
       client::RenderOutput r;
-      if (!w.render(q, &r, 20000, &wwhy)) continue;
+      if (!w.render(q, &r, test::scaled_ms(20000), &wwhy)) continue;
       seen_version = std::max<std::uint64_t>(seen_version, r.map_version);
       seen_gaussians = std::max<std::uint64_t>(seen_gaussians, r.map_gaussians);
     }
@@ -978,7 +979,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     q.frame_id = 0;
     q.channels = client::kOpacity;
     client::RenderOutput r;
-    return c.render(q, &r, 20000, &why) ? r.map_version : 0;
+    return c.render(q, &r, test::scaled_ms(20000), &why) ? r.map_version : 0;
   };
   const std::uint64_t before_refine = version_now();
   std::string refine_err;
@@ -1041,7 +1042,7 @@ TEST(ServiceSessionModes, ExtendWithFeaturesContinuesTheMapsOnlineHeads) {
     q.view.from_frame = true;
     q.view.frame_id = 70;
     client::SegmentOutput seg;
-    EXPECT_TRUE(c.segment(q, &seg, 60000, &why)) << why;
+    EXPECT_TRUE(c.segment(q, &seg, test::scaled_ms(60000), &why)) << why;
   }
   server->stop();
   std::ifstream log(dir + "/server2.log");
@@ -1067,7 +1068,7 @@ TEST(ServiceResend, ALoadResentAfterItsAnswerIsAnsweredAgainAndRunsOnce) {
   {
     client::Client c(options_for(prefix));
     std::string folder;
-    ASSERT_TRUE(c.save_map("saved", "", 20000, &folder, &why)) << why;
+    ASSERT_TRUE(c.save_map("saved", "", test::scaled_ms(20000), &folder, &why)) << why;
   }
   RawRequester raw(prefix, "load-client");
   ASSERT_TRUE(raw.connect());
@@ -1126,7 +1127,7 @@ TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
   };
   client::SessionOptions queue;
   queue.policy = client::FramePolicy::queue;
-  ASSERT_TRUE(c.open_session("lap", "lap", 10000, &why, queue)) << why;
+  ASSERT_TRUE(c.open_session("lap", "lap", test::scaled_ms(10000), &why, queue)) << why;
   for (std::size_t i = 0; i < n; ++i) {
     core::RgbdFrame frame;
     ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
@@ -1137,7 +1138,7 @@ TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
     ASSERT_TRUE(c.push_frame("lap", frame_input(frame, i, depth_mm), &why, 10000)) << why;
   }
   // The loop thread verifies and solves after the frames are tracked: wait for its report.
-  for (int k = 0; k < 1200; ++k) {
+  for (int k = 0; k < test::scaled_s(1200); ++k) {
     {
       std::lock_guard<std::mutex> lock(mutex);
       if (poses.size() >= n && loops >= 1) break;
@@ -1166,7 +1167,7 @@ TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
   core::AteResult ate;
   ASSERT_TRUE(core::compute_ate(dataset->ground_truth(), estimate, core::AteConfig{}, &ate, &why)) << why;
   EXPECT_LT(ate.rmse, 0.01) << "metres";
-  ASSERT_TRUE(c.close_session("lap", 60000, &why)) << why;
+  ASSERT_TRUE(c.close_session("lap", test::scaled_ms(60000), &why)) << why;
   // The map after close renders the first frame's view where the sensor saw surfaces.
   core::RgbdFrame first;
   ASSERT_TRUE(dataset->load(0, &first, &why)) << why;
@@ -1177,7 +1178,7 @@ TEST(ServiceLoopClosure, AStreamingSessionClosesTheLoopAndReportsIt) {
   q.channels = client::kDepth;
   q.depth_scale = 1000.0f;
   client::RenderOutput render;
-  ASSERT_TRUE(c.render(q, &render, 30000, &why)) << why;
+  ASSERT_TRUE(c.render(q, &render, test::scaled_ms(30000), &why)) << why;
   const client::RenderedImage* depth = channel(render, client::kDepth);
   ASSERT_NE(depth, nullptr);
   double coverage = 0.0;
