@@ -187,7 +187,7 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
   for (std::size_t i = 0; i < kFrames; ++i) {
     ASSERT_TRUE(c.push_frame("live", frame_input(frames[i], i, depths[i]), &why)) << why;
   }
-  for (int k = 0; k < 300; ++k) {
+  for (int k = 0; k < test::scaled_s(300); ++k) {
     {
       std::lock_guard<std::mutex> lock(mutex);
       if (outcomes.size() >= kFrames) break;
@@ -616,15 +616,16 @@ TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
   }
   // A second session streams throughout (queue policy, 5 Hz for 8 s) while "quiet" sends nothing.
   std::thread busy([&] {
-    run_command(fslam_bin() + " stream --policy queue --rate 5 --dataset " + dir + "/seq --prefix " + prefix +
+    run_command(fslam_bin() + " stream --policy queue --rate 5 --timeout " + std::to_string(test::scaled_s(60)) +
+                    " --dataset " + dir + "/seq --prefix " + prefix +
                     " --session busy --map busy_map --report " + dir + "/busy.json",
                 &out, &err);
   });
   bool closed = false;
   // The lease is 2 s and status comes every second, but the map reads idle only once the close has
   // drained the session's mapping, which shares the machine with the busy session (and, under
-  // ctest -j2, another test): allow 30 s.
-  for (int i = 0; i < 300 && !closed; ++i) {
+  // ctest -j2, another test): allow 30 s (times the build's time scale).
+  for (int i = 0; i < test::scaled_s(300) && !closed; ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     std::lock_guard<std::mutex> lock(mutex);
     closed = streaming.count("quiet_map@idle") > 0;

@@ -78,9 +78,9 @@ TEST(ServiceShutdown, SigtermIsHonouredWhileAClientKeepsStreaming) {
   for (int i = 0; i < 600 && read_text(stream_log).find("( 20%)") == std::string::npos; ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   ASSERT_NE(read_text(stream_log).find("( 20%)"), std::string::npos) << read_text(stream_log);
-  const double stop_s = seconds_to_stop(server.release(), 30.0);
+  const double stop_s = seconds_to_stop(server.release(), 30.0 * test::time_scale());
   test::stop_process(stream);
-  EXPECT_LT(stop_s, 10.0) << "SIGTERM with a client streaming\n" << read_text(dir + "/server.log");
+  EXPECT_LT(stop_s, 10.0 * test::time_scale()) << "SIGTERM with a client streaming\n" << read_text(dir + "/server.log");
   // It tracked what it took and said so on the way out.
   EXPECT_NE(read_text(dir + "/server.log").find("fslam-server: stopped; frames received"), std::string::npos);
 }
@@ -110,8 +110,8 @@ TEST(ServiceShutdown, AnUnansweredCloseFailsTheStreamAndShutdownSkipsTheMappersB
   EXPECT_FALSE(report.value("closed", true));
   EXPECT_EQ(report.value("tracked", 0), 10);  // the poses are complete all the same
 
-  const double stop_s = seconds_to_stop(server.release(), 60.0);
-  EXPECT_LT(stop_s, 10.0) << "SIGTERM with the mapper behind\n" << read_text(dir + "/server.log");
+  const double stop_s = seconds_to_stop(server.release(), 60.0 * test::time_scale());
+  EXPECT_LT(stop_s, 10.0 * test::time_scale()) << "SIGTERM with the mapper behind\n" << read_text(dir + "/server.log");
   EXPECT_GT(ply_vertices(dir + "/maps/slow/map.ply"), 1000) << read_text(dir + "/server.log");
 }
 

@@ -664,6 +664,7 @@ bool Mapper::add_keyframe(const MapperKeyframe& keyframe, RefinementStats* stats
 }
 
 bool Mapper::optimise(int iterations, std::string* why) {
+  if (hurry_) return true;  // no copy of the map per idle round while a shutdown drains
   for (int it = 0; it < iterations && !keyframes_.empty() && !map_.empty() && !hurry_; ++it) {
     if (!step(keyframes_[sample_keyframe(false)], nullptr, why)) return false;
   }

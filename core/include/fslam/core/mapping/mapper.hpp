@@ -204,8 +204,8 @@ class Mapper {
   // Extra gradient steps over sampled keyframes (idle time in real-time mode), then publishes.
   bool optimise(int iterations, std::string* why);
   // Shutdown: from now on add_keyframe inserts and publishes without gradient steps (one running
-  // stops within a step) and optimise only publishes. Every keyframe is still in the map; the
-  // optimisation skipped is left to a later session or refinement. Any thread.
+  // stops within a step) and optimise does nothing (no step, no version). Every keyframe is still
+  // in the map; the optimisation skipped is left to a later session or refinement. Any thread.
   void hurry() { hurry_ = true; }
   // Post-trajectory refinement: recompute the 3D filter over all keyframes, then `steps` steps
   // with keyframes drawn uniformly; no insertion or importance pruning.
