@@ -45,6 +45,12 @@ class SynthPipeline : public ::testing::Test {
     if (!core::FrameSelection::parse(selection, &options.frames, why)) return nullptr;
     return core::open_dataset(dir_, options, why);
   }
+  // Loads frame i and tracks it through `pipeline`; false with `why` when either fails.
+  static bool process(const core::Dataset& dataset, std::size_t i, core::SlamPipeline* pipeline,
+                      core::TrackingResult* result, std::string* why) {
+    core::RgbdFrame frame;
+    return dataset.load(i, &frame, why) && pipeline->process_frame(frame, result, why);
+  }
   static std::string dir_;
   static int status_;
   static std::string log_;
@@ -143,10 +149,8 @@ TEST_F(SynthPipeline, RealTimeKeyframeQueueIsBoundedAndCountsWhatItLeavesOut) {
   core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
   std::size_t keyframes = 0;
   for (std::size_t i = 0; i < dataset->size(); ++i) {
-    core::RgbdFrame frame;
-    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
     core::TrackingResult result;
-    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    ASSERT_TRUE(process(*dataset, i, &pipeline, &result, &why)) << why;
     keyframes += result.keyframe ? 1 : 0;
     EXPECT_LE(pipeline.queued_keyframes(), 3u);
   }
@@ -178,10 +182,8 @@ TEST_F(SynthPipeline, GaussianTargetWaitsForTheKeyframesMapVersionWhenAsked) {
   std::thread mapping([&] { mapping_ok = pipeline.run_mapping(nullptr, &mapping_why); });
   int keyframes = 0;
   for (std::size_t i = 0; i < dataset->size(); ++i) {
-    core::RgbdFrame frame;
-    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
     core::TrackingResult result;
-    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    ASSERT_TRUE(process(*dataset, i, &pipeline, &result, &why)) << why;
     // One map version per keyframe mapped (no idle steps outside real time): by the time this
     // frame was tracked, every keyframe before it was in the map.
     if (i > 0) {
@@ -220,10 +222,8 @@ TEST_F(SynthPipeline, RealTimeIdleOptimisationStopsAfterItsBudget) {
   });
   int keyframes = 0;
   for (std::size_t i = 0; i < dataset->size(); ++i) {
-    core::RgbdFrame frame;
-    ASSERT_TRUE(dataset->load(i, &frame, &why)) << why;
     core::TrackingResult result;
-    ASSERT_TRUE(pipeline.process_frame(frame, &result, &why)) << why;
+    ASSERT_TRUE(process(*dataset, i, &pipeline, &result, &why)) << why;
     keyframes += result.keyframe ? 1 : 0;
   }
   ASSERT_GE(keyframes, 1);
