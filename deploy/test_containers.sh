@@ -150,7 +150,7 @@ wait_ready() {  # the server's health file exists: it serves
 }
 log "server container"
 t0=$(now)
-podman run -d --pod "$POD" --name "$SERVER" -v "$VOLUME:/maps" "$IMAGE" \
+podman run -d --pod "$POD" --name "$SERVER" --cap-add SYS_NICE -v "$VOLUME:/maps" "$IMAGE" \
   fslam-server --map-dir /maps --prefix "$PREFIX" --health-file /tmp/fslam-health >/dev/null
 wait_ready
 STARTUP="$(seconds_since "$t0")"

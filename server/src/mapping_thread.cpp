@@ -19,47 +19,103 @@ pid_t current_tid() { return static_cast<pid_t>(syscall(SYS_gettid)); }
 
 // Linux scheduling policies are per thread. SCHED_IDLE needs no privilege; failing to go back to
 // SCHED_OTHER (a container's seccomp profile, say) only leaves a thread at the lower priority.
-void set_policy(pid_t tid, bool idle, int nice = 0) {
+// Returns false when the kernel refused.
+bool set_policy(pid_t tid, bool idle, int nice = 0) {
   const sched_param param{};
-  sched_setscheduler(tid, idle ? SCHED_IDLE : SCHED_OTHER, &param);
-  if (!idle) setpriority(PRIO_PROCESS, static_cast<id_t>(tid), nice);
+  bool ok = sched_setscheduler(tid, idle ? SCHED_IDLE : SCHED_OTHER, &param) == 0;
+  if (!idle) ok = setpriority(PRIO_PROCESS, static_cast<id_t>(tid), nice) == 0 && ok;
+  return ok;
 }
-void set_thread_idle(bool idle) { set_policy(current_tid(), idle); }
-
-// Lowers the priority of every TBB worker while it works in the mapping arena.
-class LowPriorityWorkers final : public tbb::task_scheduler_observer {
+// Keeps every TBB worker at the mapping thread's priority while it works in the mapping arena:
+// a worker left at SCHED_IDLE under load holds the task the lifted mapping thread then waits for.
+class ArenaWorkers final : public tbb::task_scheduler_observer {
  public:
-  explicit LowPriorityWorkers(tbb::task_arena& arena) : tbb::task_scheduler_observer(arena) { observe(true); }
-  ~LowPriorityWorkers() override { observe(false); }
+  ArenaWorkers(tbb::task_arena& arena, MappingThread::Priority* priority)
+      : tbb::task_scheduler_observer(arena), priority_(priority) {
+    observe(true);
+  }
+  ~ArenaWorkers() override { observe(false); }
   void on_scheduler_entry(bool worker) override {
-    if (worker) set_thread_idle(true);
+    if (worker) priority_->enter(current_tid());
   }
   void on_scheduler_exit(bool worker) override {
-    if (worker) set_thread_idle(false);
+    if (worker) priority_->leave(current_tid());
   }
+
+ private:
+  MappingThread::Priority* priority_;
 };
 
 }  // namespace
 
+bool MappingThread::can_leave_idle() {
+  // A thread under SCHED_IDLE counts as nice 20: going back to SCHED_OTHER at nice 0 needs
+  // CAP_SYS_NICE or an RLIMIT_NICE of 20 (sched_setscheduler(2)). Tried once, on a thread of its own.
+  static const bool can = [] {
+    bool ok = false;
+    std::thread([&] {
+      const pid_t tid = current_tid();
+      ok = set_policy(tid, true) && set_policy(tid, false, 0);
+    }).join();
+    return ok;
+  }();
+  return can;
+}
+
+void MappingThread::Priority::enter(pid_t tid) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  threads_.insert(tid);
+  apply(tid);
+}
+
+void MappingThread::Priority::leave(pid_t tid) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  threads_.erase(tid);
+  set_policy(tid, false);  // a TBB worker goes back to serve other arenas at normal priority
+}
+
+void MappingThread::Priority::set_step(int step) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  step_ = step;
+  for (const pid_t tid : threads_) apply(tid);
+}
+
+int MappingThread::Priority::step() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return step_;
+}
+
+void MappingThread::Priority::apply(pid_t tid) const {
+  if (step_ == 0) {
+    set_policy(tid, true);
+  } else {
+    set_policy(tid, false, step_ == 1 ? kStarvedMappingNice : 0);
+  }
+}
+
 MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low_priority,
                              std::function<void(const core::KeyframeReport&)> on_keyframe,
-                             std::function<void(const std::string&)> on_failure) {
+                             std::function<void(const std::string&)> on_failure)
+    : guarded_(low_priority && can_leave_idle()) {
+  // Without the right to leave SCHED_IDLE, starvation could not be undone: nice 10 from the start.
+  if (low_priority && !guarded_) priority_.set_step(1);
   thread_ = std::thread([=] {
-    tid_ = current_tid();
-    if (low_priority) set_thread_idle(true);
+    if (low_priority) priority_.enter(current_tid());
     tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
     arena.initialize();
-    std::unique_ptr<LowPriorityWorkers> observer;
-    if (low_priority) observer = std::make_unique<LowPriorityWorkers>(arena);
+    std::unique_ptr<ArenaWorkers> observer;
+    if (low_priority) observer = std::make_unique<ArenaWorkers>(arena, &priority_);
     const auto mapped = [&](const core::KeyframeReport& report) {
-      if (lifted_.exchange(0) > 0) set_thread_idle(true);  // the starved keyframe is mapped
+      // Back to SCHED_IDLE once the backlog that starved is mapped, not after each keyframe: a
+      // machine that stays loaded would otherwise starve every keyframe for a window again.
+      if (guarded_ && pipeline->queued_keyframes() == 0 && priority_.step() > 0) priority_.set_step(0);
       if (on_keyframe) on_keyframe(report);
     };
     std::string why;
     const bool ok = arena.execute([&] { return pipeline->run_mapping(mapped, &why); });
     if (!ok && on_failure) on_failure(why.empty() ? "mapping failed" : why);
   });
-  if (low_priority) guard_ = std::thread([this, pipeline] { guard_starvation(pipeline); });
+  if (guarded_) guard_ = std::thread([this, pipeline] { guard_starvation(pipeline); });
 }
 
 void MappingThread::guard_starvation(const core::SlamPipeline* pipeline) {
@@ -83,12 +139,8 @@ void MappingThread::guard_starvation(const core::SlamPipeline* pipeline) {
       cpu_since = cpu_seconds();
     } else if (window >= kMappingStarvationSeconds) {
       const double share = (cpu_seconds() - cpu_since) / window;
-      const int step = lifted_.load();
-      if (share < kStarvedCpuShare && step < 2 && tid_ != 0) {
-        // First the step, then the policy: the next keyframe mapped lowers it again.
-        lifted_ = step + 1;
-        set_policy(tid_, false, step == 0 ? kStarvedMappingNice : 0);
-      }
+      const int step = priority_.step();
+      if (share < kStarvedCpuShare && step < 2) priority_.set_step(step + 1);
       since = Clock::now();
       cpu_since = cpu_seconds();
     }

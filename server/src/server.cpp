@@ -12,6 +12,7 @@
 #include "fslam/server/backend_factory.hpp"
 #include "fslam/server/health_file.hpp"
 #include "fslam/server/map_directory.hpp"
+#include "fslam/server/mapping_thread.hpp"
 #include "fslam/server/wire.hpp"
 #include "counters.hpp"
 #include "map_registry.hpp"
@@ -111,6 +112,11 @@ bool Server::activate(std::string* why) {
     log("grounding model " + config_.grounding_model + " loaded for text queries");
   }
   if (!maps_->load_saved_maps(why)) return false;
+  if (config_.pipeline.realtime && !MappingThread::can_leave_idle())
+    log("mapping runs at nice " + std::to_string(kStarvedMappingNice) +
+        " instead of SCHED_IDLE: this process may not take a thread out of SCHED_IDLE (no CAP_SYS_NICE, "
+        "RLIMIT_NICE below 20), so starved mapping could not be lifted; tracking latency is higher under "
+        "load (grant CAP_SYS_NICE: --cap-add SYS_NICE; docs/mapping.md)");
   try {
     using client::Delivery;
     participant_ = client::make_participant(config_.domain);

@@ -2,10 +2,10 @@
 // pipeline's mapping loop in a TBB arena of its own, and in real time below tracking's priority.
 #pragma once
 
-#include <atomic>
 #include <condition_variable>
 #include <functional>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 
@@ -22,8 +22,11 @@ namespace fslam::server {
 // So that an overloaded machine still grows its maps, a mapping thread that got under
 // kStarvedCpuShare of a core for kMappingStarvationSeconds while a keyframe waited is lifted one
 // step, to kStarvedMappingNice; still starved there for another window (several sessions with
-// features on fill every core at nice 0), one more, to nice 0, where it gets a fair share; it
-// goes back to SCHED_IDLE once it has mapped the next keyframe.
+// features on fill every core at nice 0), one more, to nice 0, where it gets a fair share. Each
+// step lifts the TBB workers working for it too. It goes back to SCHED_IDLE once no keyframe
+// waits after one is mapped. Leaving SCHED_IDLE needs CAP_SYS_NICE or an RLIMIT_NICE of 20;
+// without them (a container without --cap-add SYS_NICE) mapping runs at kStarvedMappingNice
+// throughout, and TBB workers that worked for it stay there (docs/mapping.md).
 constexpr double kMappingStarvationSeconds = 2.0;
 constexpr double kStarvedCpuShare = 0.05;
 constexpr int kStarvedMappingNice = 10;
@@ -44,12 +47,35 @@ class MappingThread {
   // Waits for the loop to end (call pipeline->finish() first).
   void join();
 
+  // The current priority step (0: SCHED_IDLE, 1: kStarvedMappingNice, 2: nice 0); 0 when not
+  // low_priority.
+  int priority_step() const { return priority_.step(); }
+
+  // Whether this process may take a thread out of SCHED_IDLE (probed once).
+  static bool can_leave_idle();
+
+  // The priority step (0: SCHED_IDLE, 1: kStarvedMappingNice, 2: nice 0) shared by the mapping
+  // thread and the TBB workers while they work in its arena.
+  class Priority {
+   public:
+    void enter(pid_t tid);  // a thread starts working for mapping: set to the current step
+    void leave(pid_t tid);  // a worker leaves the arena: back to normal priority
+    void set_step(int step);
+    int step() const;
+
+   private:
+    void apply(pid_t tid) const;  // needs mutex_
+    mutable std::mutex mutex_;
+    std::set<pid_t> threads_;
+    int step_ = 0;
+  };
+
  private:
   void guard_starvation(const core::SlamPipeline* pipeline);
   std::thread thread_;
-  std::thread guard_;                     // low_priority only
-  std::atomic<pid_t> tid_{0};             // the mapping thread's Linux thread id
-  std::atomic<int> lifted_{0};            // steps the guard raised the mapping thread (0-2)
+  const bool guarded_;                    // low_priority and allowed to leave SCHED_IDLE
+  std::thread guard_;                     // guarded_ only
+  Priority priority_;                     // low_priority only
   std::mutex mutex_;
   std::condition_variable stop_;
   bool stopping_ = false;  // guarded by mutex_

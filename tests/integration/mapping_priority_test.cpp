@@ -1,0 +1,140 @@
+// Real-time mapping's priority under load (server/mapping_thread.hpp): SCHED_IDLE, lifted with its
+// TBB workers when it starves, back to SCHED_IDLE once its backlog is mapped.
+#include <sched.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "cli_runner.hpp"
+#include "fslam/core/dataset/dataset.hpp"
+#include "fslam/core/pipeline/slam_pipeline.hpp"
+#include "fslam/core/render/rasterizer.hpp"
+#include "fslam/server/mapping_thread.hpp"
+#include "test_support.hpp"
+
+namespace fslam {
+namespace {
+
+// How many of this process's threads run under SCHED_IDLE (/proc/self/task/*/stat, field 41).
+int idle_threads() {
+  int idle = 0;
+  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task")) {
+    std::ifstream in(task.path() / "stat");
+    std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::size_t close = stat.rfind(')');
+    if (close == std::string::npos) continue;
+    std::istringstream fields(stat.substr(close + 2));  // field 3 (state) on
+    std::string field;
+    for (int i = 3; i <= 41 && fields >> field; ++i) {
+      if (i == 41 && std::stoi(field) == SCHED_IDLE) ++idle;
+    }
+  }
+  return idle;
+}
+
+// One spinning thread at nice 10 per core, so SCHED_IDLE threads get (next to) nothing.
+class CpuHog {
+ public:
+  CpuHog() {
+    const unsigned n = std::max(1u, std::thread::hardware_concurrency());
+    for (unsigned i = 0; i < n; ++i) {
+      threads_.emplace_back([this] {
+        setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
+        while (!stop_.load(std::memory_order_relaxed)) {
+        }
+      });
+    }
+  }
+  ~CpuHog() {
+    stop_ = true;
+    for (std::thread& t : threads_) t.join();
+  }
+
+ private:
+  std::atomic<bool> stop_{false};
+  std::vector<std::thread> threads_;
+};
+
+// Every core busy at nice 10: the mapping thread starves under SCHED_IDLE, is lifted with the
+// TBB workers of its arena (no thread of the process stays SCHED_IDLE while it is lifted: a
+// worker left there held tasks the lifted thread waited for, and each keyframe was starved
+// again), maps every keyframe, and goes back to SCHED_IDLE once none waits.
+TEST(MappingThreadUnderLoad, StarvedMappingIsLiftedWithItsWorkersThenGoesBackToIdle) {
+  if (!server::MappingThread::can_leave_idle()) {
+    GTEST_SKIP() << "this process may not leave SCHED_IDLE (no CAP_SYS_NICE, RLIMIT_NICE below 20): "
+                    "mapping runs at nice 10 throughout and is never lifted";
+  }
+  const std::string dir = test::fresh_temp_dir("priority").string();
+  std::string out, err;
+  ASSERT_EQ(test::run_command(test::fslam_bin() + " synth --out " + dir + " --frames 40 --seed 7", &out, &err), 0)
+      << out << err;
+  std::string why;
+  core::DatasetOptions options;
+  const auto dataset = core::open_dataset(dir, options, &why);
+  ASSERT_TRUE(dataset) << why;
+
+  core::PipelineConfig config;
+  config.realtime = true;
+  config.mapper.iterations_per_keyframe = 100;  // a backlog after tracking, on any machine
+  core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
+  std::atomic<int> mapped{0};
+  CpuHog hog;
+  server::MappingThread mapping(&pipeline, 2, true, [&](const core::KeyframeReport&) { ++mapped; }, nullptr);
+  struct Finish {  // before `mapping` is joined, however the test ends
+    core::SlamPipeline* pipeline;
+    ~Finish() { pipeline->finish(); }
+  } finish{&pipeline};
+
+  std::size_t keyframes = 0;
+  for (std::size_t i = 0; i < dataset->size(); ++i) {
+    core::RgbdFrame frame;
+    core::TrackingResult result;
+    ASSERT_TRUE(dataset->load(i, &frame, &why) && pipeline.process_frame(frame, &result, &why)) << why;
+    keyframes += result.keyframe ? 1 : 0;
+  }
+  ASSERT_GE(keyframes, 3u);
+  const int to_map = static_cast<int>(keyframes - pipeline.keyframes_left_out());
+
+  // While lifted and no keyframe was mapped in between, no thread of the process is SCHED_IDLE.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(120));
+  int lifted_snapshots = 0;
+  while (std::chrono::steady_clock::now() < deadline &&
+         mapped.load() < to_map) {
+    const int before = mapped.load();
+    if (mapping.priority_step() > 0) {
+      const int idle = idle_threads();
+      if (mapping.priority_step() > 0 && mapped.load() == before && pipeline.queued_keyframes() > 0) {
+        EXPECT_EQ(idle, 0) << "a thread of the process stayed SCHED_IDLE while mapping was lifted";
+        ++lifted_snapshots;
+      }
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_GT(lifted_snapshots, 0) << "mapping was never lifted while keyframes waited";
+  ASSERT_EQ(mapped.load(), to_map) << "the backlog was not mapped in time under load";
+
+  // The backlog mapped: back to SCHED_IDLE (the mapping thread, idling between rounds).
+  const auto settle = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(30));
+  while (mapping.priority_step() > 0 && std::chrono::steady_clock::now() < settle) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_EQ(mapping.priority_step(), 0);
+  EXPECT_GE(idle_threads(), 1) << "the mapping thread is not back under SCHED_IDLE";
+
+  pipeline.finish();
+  mapping.join();
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace fslam
