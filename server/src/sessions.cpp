@@ -68,7 +68,8 @@ struct Sessions::Session {
   bool closing = false;
   bool preparing_done = false;    // the preparing thread drained `queue` after closing
   Clock::time_point last_frame = Clock::now();  // opened, or the newest frame arrived (guarded by `mutex`)
-  // server.session_lease_s closes the session when its client stops sending; false for a
+  // server.session_lease_s closes the session when its client stops sending and no frame of it
+  // waits; false for a
   // session the server itself feeds (the ROS 2 bridge), which no dead client can leave behind.
   bool leased = true;
   RateLimit frame_rate;                          // server.max_session_fps (guarded by `mutex`)
@@ -347,7 +348,10 @@ void Sessions::close_idle(double lease_s) {
       bool expired = false;
       {
         std::lock_guard<std::mutex> qlock(it->second->mutex);
-        expired = it->second->leased && Clock::now() - it->second->last_frame > lease;
+        // Frames still waiting are the client's too: a queue-policy client waiting for the
+        // poses of its backlog is not gone (under TSan a 3-s lease closed such a session).
+        const Session& s = *it->second;
+        expired = s.leased && s.queue.empty() && s.prepared.empty() && Clock::now() - s.last_frame > lease;
       }
       if (!expired) {
         ++it;
