@@ -20,8 +20,11 @@ struct LocalMapConfig {
   bool fuse = true;  // ... but fused into that stored point (product of the two Gaussians), so
                      // repeated observations average the sensor noise out; off: the first stays
   int max_points_per_voxel = 27;
-  float radius = 4.0f;              // metres; voxels farther than this from the latest keyframe
-                                    // camera are dropped after each insertion
+  // Metres; voxels farther than this from the latest keyframe camera are dropped after each
+  // insertion. The preprocess max_depth (6 m): what the camera can see stays. At 4 m the synthetic
+  // hall's camera, turning at the hall's end to look back down it, registered against a map that
+  // had dropped what it saw 4-6 m away and slid 33-40 cm sideways in 10 frames (docs/tracking.md).
+  float radius = 6.0f;
   bool is_valid(std::string* why = nullptr) const;
 };
 
