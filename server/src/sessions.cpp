@@ -67,7 +67,8 @@ struct Sessions::Session {
   std::deque<PreparedFrame> prepared;  // waiting to be registered; live: at most one
   bool closing = false;
   bool preparing_done = false;    // the preparing thread drained `queue` after closing
-  Clock::time_point last_frame = Clock::now();  // opened, or the newest frame arrived (guarded by `mutex`)
+  // Opened, the newest frame arrived, or the last frame of it was tracked (guarded by `mutex`).
+  Clock::time_point last_active = Clock::now();
   // server.session_lease_s closes the session when its client stops sending and no frame of it
   // waits; false for a
   // session the server itself feeds (the ROS 2 bridge), which no dead client can leave behind.
@@ -348,10 +349,10 @@ void Sessions::close_idle(double lease_s) {
       bool expired = false;
       {
         std::lock_guard<std::mutex> qlock(it->second->mutex);
-        // Frames still waiting are the client's too: a queue-policy client waiting for the
-        // poses of its backlog is not gone (under TSan a 3-s lease closed such a session).
+        // From the last frame tracked too: a queue-policy client waiting for the poses of its
+        // backlog, then closing, is not gone (under TSan a 3-s lease closed such sessions).
         const Session& s = *it->second;
-        expired = s.leased && s.queue.empty() && s.prepared.empty() && Clock::now() - s.last_frame > lease;
+        expired = s.leased && s.queue.empty() && s.prepared.empty() && Clock::now() - s.last_active > lease;
       }
       if (!expired) {
         ++it;
@@ -494,8 +495,8 @@ void Sessions::handle_frame(const fslam_proto_Frame& msg) {
   {
     std::lock_guard<std::mutex> qlock(s.mutex);
     ++s.received;
-    s.last_frame = Clock::now();
-    if (!s.frame_rate.take(s.last_frame)) {
+    s.last_active = Clock::now();
+    if (!s.frame_rate.take(s.last_active)) {
       return drop_locked(&s, msg, "frame " + std::to_string(msg.frame_id) + " refused: more than " +
                                       number_text(config_.max_session_fps) +
                                       " frames per second (server.max_session_fps)");
@@ -649,6 +650,7 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
   {
     std::lock_guard<std::mutex> lock(s->mutex);
     ++s->processed;
+    s->last_active = Clock::now();
     record(&s->decode_ms, prepared.decode_ms);
     record(&s->queue_ms, queue_ms);
     record(&s->track_ms, track_ms);
