@@ -100,7 +100,8 @@ MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low
   // Without the right to leave SCHED_IDLE, starvation could not be undone: nice 10 from the start.
   if (low_priority && !guarded_) priority_.set_step(1);
   thread_ = std::thread([=] {
-    if (low_priority) priority_.enter(current_tid());
+    const pid_t tid = current_tid();
+    if (low_priority) priority_.enter(tid);
     tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
     arena.initialize();
     std::unique_ptr<ArenaWorkers> observer;
@@ -114,6 +115,7 @@ MappingThread::MappingThread(core::SlamPipeline* pipeline, int threads, bool low
     std::string why;
     const bool ok = arena.execute([&] { return pipeline->run_mapping(mapped, &why); });
     if (!ok && on_failure) on_failure(why.empty() ? "mapping failed" : why);
+    if (low_priority) priority_.leave(tid);  // its id may be reused once it ends
   });
   if (guarded_) guard_ = std::thread([this, pipeline] { guard_starvation(pipeline); });
 }

@@ -5,6 +5,7 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <filesystem>
@@ -14,6 +15,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include "cli_runner.hpp"
 #include "fslam/core/dataset/dataset.hpp"
@@ -42,12 +44,31 @@ int idle_threads() {
   return idle;
 }
 
-// One spinning thread at nice 10 per core, so SCHED_IDLE threads get (next to) nothing.
+// Pins the calling thread, and so every thread it starts from now on, to the first CPU it may
+// run on: the test loads one core, not the machine (ctest -j runs other tests beside it).
+bool pin_to_one_cpu() {
+  cpu_set_t allowed;
+  if (sched_getaffinity(0, sizeof(allowed), &allowed) != 0) return false;
+  for (int cpu = 0; cpu < CPU_SETSIZE; ++cpu) {
+    if (!CPU_ISSET(cpu, &allowed)) continue;
+    cpu_set_t one;
+    CPU_ZERO(&one);
+    CPU_SET(cpu, &one);
+    return sched_setaffinity(0, sizeof(one), &one) == 0;
+  }
+  return false;
+}
+
+// One spinning thread at nice 10 per CPU this thread may run on, so SCHED_IDLE threads there get
+// (next to) nothing.
 class CpuHog {
  public:
   CpuHog() {
-    const unsigned n = std::max(1u, std::thread::hardware_concurrency());
-    for (unsigned i = 0; i < n; ++i) {
+    cpu_set_t allowed;
+    CPU_ZERO(&allowed);
+    sched_getaffinity(0, sizeof(allowed), &allowed);
+    const int n = std::max(1, CPU_COUNT(&allowed));
+    for (int i = 0; i < n; ++i) {
       threads_.emplace_back([this] {
         setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
         while (!stop_.load(std::memory_order_relaxed)) {
@@ -65,7 +86,7 @@ class CpuHog {
   std::vector<std::thread> threads_;
 };
 
-// Every core busy at nice 10: the mapping thread starves under SCHED_IDLE, is lifted with the
+// Its CPU busy at nice 10: the mapping thread starves under SCHED_IDLE, is lifted with the
 // TBB workers of its arena (no thread of the process stays SCHED_IDLE while it is lifted: a
 // worker left there held tasks the lifted thread waited for, and each keyframe was starved
 // again), maps every keyframe, and goes back to SCHED_IDLE once none waits.
@@ -74,6 +95,11 @@ TEST(MappingThreadUnderLoad, StarvedMappingIsLiftedWithItsWorkersThenGoesBackToI
     GTEST_SKIP() << "this process may not leave SCHED_IDLE (no CAP_SYS_NICE, RLIMIT_NICE below 20): "
                     "mapping runs at nice 10 throughout and is never lifted";
   }
+  // Before any thread (TBB's workers included) is started.
+  ASSERT_TRUE(pin_to_one_cpu());
+  // TBB sizes its worker pool from the CPUs it may use (now one: no worker); the arena below
+  // asks for two threads, so that one TBB worker works for mapping beside its thread.
+  const tbb::global_control two_threads(tbb::global_control::max_allowed_parallelism, 2);
   const std::string dir = test::fresh_temp_dir("priority").string();
   std::string out, err;
   ASSERT_EQ(test::run_command(test::fslam_bin() + " synth --out " + dir + " --frames 40 --seed 7", &out, &err), 0)

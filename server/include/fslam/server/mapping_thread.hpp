@@ -47,8 +47,7 @@ class MappingThread {
   // Waits for the loop to end (call pipeline->finish() first).
   void join();
 
-  // The current priority step (0: SCHED_IDLE, 1: kStarvedMappingNice, 2: nice 0); 0 when not
-  // low_priority.
+  // The current priority step (Priority below); 0 when not low_priority.
   int priority_step() const { return priority_.step(); }
 
   // Whether this process may take a thread out of SCHED_IDLE (probed once).
@@ -59,7 +58,7 @@ class MappingThread {
   class Priority {
    public:
     void enter(pid_t tid);  // a thread starts working for mapping: set to the current step
-    void leave(pid_t tid);  // a worker leaves the arena: back to normal priority
+    void leave(pid_t tid);  // a thread stops working for mapping: back to normal priority
     void set_step(int step);
     int step() const;
 
