@@ -71,7 +71,7 @@ void MappingThread::Priority::enter(pid_t tid) {
 void MappingThread::Priority::leave(pid_t tid) {
   std::lock_guard<std::mutex> lock(mutex_);
   threads_.erase(tid);
-  set_policy(tid, false);  // a TBB worker goes back to serve other arenas at normal priority
+  set_policy(tid, false);  // a worker serves other arenas, an ending thread frees its id
 }
 
 void MappingThread::Priority::set_step(int step) {

@@ -35,6 +35,12 @@ inline int run_command(const std::string& command, std::string* out, std::string
 
 inline std::string fslam_bin() { return (bin_dir() / "fslam").string(); }
 
+// `fslam stream` in queue policy (every frame tracked), waiting for its close as long as mapping
+// takes in this build (60 s times the time scale); callers add the source, prefix and session.
+inline std::string queue_stream_command() {
+  return fslam_bin() + " stream --policy queue --timeout " + std::to_string(scaled_s(60));
+}
+
 // Starts fslam-server in the background with `args`, output to `log`; returns its pid (or -1).
 inline pid_t start_server(const std::string& args, const std::string& log) {
   const std::string server = (bin_dir() / "fslam-server").string();

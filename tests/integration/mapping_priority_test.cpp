@@ -5,14 +5,12 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
-#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <thread>
-#include <vector>
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
@@ -59,31 +57,24 @@ bool pin_to_one_cpu() {
   return false;
 }
 
-// One spinning thread at nice 10 per CPU this thread may run on, so SCHED_IDLE threads there get
-// (next to) nothing.
+// A thread spinning at nice 10 on the test's one CPU, so SCHED_IDLE threads there get (next to)
+// nothing.
 class CpuHog {
  public:
-  CpuHog() {
-    cpu_set_t allowed;
-    CPU_ZERO(&allowed);
-    sched_getaffinity(0, sizeof(allowed), &allowed);
-    const int n = std::max(1, CPU_COUNT(&allowed));
-    for (int i = 0; i < n; ++i) {
-      threads_.emplace_back([this] {
-        setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
-        while (!stop_.load(std::memory_order_relaxed)) {
-        }
-      });
-    }
-  }
+  CpuHog()
+      : thread_([this] {
+          setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
+          while (!stop_.load(std::memory_order_relaxed)) {
+          }
+        }) {}
   ~CpuHog() {
     stop_ = true;
-    for (std::thread& t : threads_) t.join();
+    thread_.join();
   }
 
  private:
   std::atomic<bool> stop_{false};
-  std::vector<std::thread> threads_;
+  std::thread thread_;
 };
 
 // Its CPU busy at nice 10: the mapping thread starves under SCHED_IDLE, is lifted with the
@@ -134,8 +125,7 @@ TEST(MappingThreadUnderLoad, StarvedMappingIsLiftedWithItsWorkersThenGoesBackToI
   // While lifted and no keyframe was mapped in between, no thread of the process is SCHED_IDLE.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(120));
   int lifted_snapshots = 0;
-  while (std::chrono::steady_clock::now() < deadline &&
-         mapped.load() < to_map) {
+  while (std::chrono::steady_clock::now() < deadline && mapped.load() < to_map) {
     const int before = mapped.load();
     if (mapping.priority_step() > 0) {
       const int idle = idle_threads();

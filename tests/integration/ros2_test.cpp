@@ -42,11 +42,6 @@ constexpr std::size_t kFrames = 60;
 // The suite's server.session_lease_s: short, so that a pause longer than it fits in a test.
 constexpr int kLeaseS = 3;
 
-// `fslam stream` in queue policy, waiting for its close as long as mapping takes in this build.
-std::string stream_command() {
-  return fslam_bin() + " stream --policy queue --timeout " + std::to_string(test::scaled_s(60));
-}
-
 // A frame of the dataset as ROS 2 messages: rgb8 colour, 32FC1 depth (metres), CameraInfo.
 struct CameraMessages {
   std::string frame = "camera_color_optical_frame", rgb8 = "rgb8", f32 = "32FC1", model = "plumb_bob";
@@ -259,7 +254,7 @@ TEST_F(Ros2Bridge, TracksTheSyntheticRoomLikeTheNativeClient) {
       << why;
 
   std::string out, err;
-  ASSERT_EQ(run_command(stream_command() + " --dataset " + dir_ + "/seq --prefix " + prefix_ +
+  ASSERT_EQ(run_command(test::queue_stream_command() + " --dataset " + dir_ + "/seq --prefix " + prefix_ +
                             " --session native --report " + dir_ + "/native.json",
                         &out, &err),
             0)
@@ -398,12 +393,12 @@ TEST_F(Ros2Bridge, Rosbag2PlaybackGivesTheTrajectoryOfItsFolder) {
   std::string why;
   ASSERT_TRUE(write_bag(*dataset_, dir_ + "/bag", &why)) << why;
   std::string out, err;
-  ASSERT_EQ(run_command(stream_command() + " --rosbag2 " + dir_ + "/bag --prefix " + prefix_ +
+  ASSERT_EQ(run_command(test::queue_stream_command() + " --rosbag2 " + dir_ + "/bag --prefix " + prefix_ +
                             " --session bagged --out " + dir_ + "/bag.txt",
                         &out, &err),
             0)
       << out << err;
-  ASSERT_EQ(run_command(stream_command() + " --dataset " + dir_ + "/seq --prefix " + prefix_ +
+  ASSERT_EQ(run_command(test::queue_stream_command() + " --dataset " + dir_ + "/seq --prefix " + prefix_ +
                             " --session folder --out " + dir_ + "/folder.txt",
                         &out, &err),
             0)

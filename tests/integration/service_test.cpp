@@ -103,8 +103,7 @@ client::FrameInput frame_input(const core::RgbdFrame& f, std::uint64_t id, const
 int stream_sequence(const std::string& seq, const std::string& prefix, const std::string& session,
                     const std::string& args, std::string* out) {
   std::string err;
-  const int rc = run_command(fslam_bin() + " stream --policy queue --timeout " + std::to_string(test::scaled_s(60)) +
-                                 " --dataset " + seq + " --prefix " + prefix + " --session " + session + " " + args,
+  const int rc = run_command(test::queue_stream_command() + " --dataset " + seq + " --prefix " + prefix + " --session " + session + " " + args,
                              out, &err);
   *out += err;
   return rc;
@@ -294,8 +293,7 @@ TEST_F(Service, TwoStreamsWhileAThirdClientRendersBoth) {
   auto stream = [&](const std::string& session, const std::string& frames) {
     return std::async(std::launch::async, [=] {
       std::string out, err;
-      const int rc = run_command(fslam_bin() + " stream --policy queue --timeout " +
-                                     std::to_string(test::scaled_s(60)) + " --dataset " + dir_ + "/seq --frames " + frames +
+      const int rc = run_command(test::queue_stream_command() + " --dataset " + dir_ + "/seq --frames " + frames +
                                      " --prefix " + prefix_ + " --session " + session + " --map map-" +
                                      session + " --rate 15 --report " + dir_ + "/" + session + ".json",
                                  &out, &err);
@@ -616,8 +614,7 @@ TEST(ServiceLease, IdleSessionIsClosedAfterTheLeaseAndItsMapKept) {
   }
   // A second session streams throughout (queue policy, 5 Hz for 8 s) while "quiet" sends nothing.
   std::thread busy([&] {
-    run_command(fslam_bin() + " stream --policy queue --rate 5 --timeout " + std::to_string(test::scaled_s(60)) +
-                    " --dataset " + dir + "/seq --prefix " + prefix +
+    run_command(test::queue_stream_command() + " --rate 5 --dataset " + dir + "/seq --prefix " + prefix +
                     " --session busy --map busy_map --report " + dir + "/busy.json",
                 &out, &err);
   });
