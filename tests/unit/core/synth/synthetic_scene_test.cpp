@@ -281,7 +281,7 @@ TEST(SynthTrajectory, HallLoopLeavesTheLocalMapAndReturnsEveryLap) {
     const Trajectory trajectory = make_trajectory(hall, options);
     ASSERT_EQ(trajectory.size(), options.frames);
     const LoopSteps steps = check_loop(hall, trajectory, 1800, "hall seed " + std::to_string(seed));
-    EXPECT_GT(steps.farthest, 8.0) << "seed " << seed << ": a lap must leave the 6-m local map";
+    EXPECT_GT(steps.farthest, 8.0) << "seed " << seed << ": a lap must leave the 4-m local map";
     EXPECT_LT(steps.step_max, 0.02) << "seed " << seed;
     EXPECT_LT(steps.angle_max, 1.3 * kDeg) << "seed " << seed;
   }
