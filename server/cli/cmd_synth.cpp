@@ -92,9 +92,10 @@ void add_synth_command(CLI::App& root, CommandList* commands) {
       ->check(CLI::IsMember({"kinect", "none"}))
       ->capture_default_str();
   app->add_option("--scene", args->scene,
-                  "Scene: room (one furnished room) or hall (about 13 x 8 m, furnished on both long "
-                  "sides: its loop leaves the tracker's local map)")
-      ->check(CLI::IsMember({"room", "hall"}))
+                  "Scene: room (one furnished room), hall (about 13 x 8 m, furnished on both long "
+                  "sides: its loop leaves the tracker's local map) or ring (a 2.5-m corridor round a "
+                  "walled block, about 14 x 9 m: its loop looks ahead and sees each place only when passing)")
+      ->check(CLI::IsMember({"room", "hall", "ring"}))
       ->capture_default_str();
   app->add_option("--path", args->path,
                   "Camera path: wander (through the room) or loop (laps of one closed loop, back "

@@ -502,6 +502,71 @@ TablePlacement furnish_far_half(Rng& rng, double W, double D, RoomBuilder& build
   return table;
 }
 
+
+// One piece of furniture against a wall, its back to the wall: `at` is the point on the wall
+// (floor level) and `n` the wall's normal into the corridor. `kind` picks a cabinet, a shelf, a
+// plant or a storage box; each reaches at most 0.55 m out from the wall.
+void add_wall_piece(Rng& rng, int kind, const std::string& name, const Vector3d& at, const Vector3d& n,
+                    RoomBuilder& builder) {
+  const double yaw = std::atan2(n.x(), -n.y());  // local +y (the back) towards the wall
+  const auto place = [&](double depth) { return pose(at + depth * n, yaw + rng.uniform(-0.03, 0.03)); };
+  switch (kind) {
+    case 0: {  // cabinet with two drawers
+      const double w = rng.uniform(0.7, 1.0), h = rng.uniform(0.8, 1.15), d = 0.42;
+      std::vector<SynthPrimitive> parts = {box({0, 0, 0.5 * h}, {0.5 * w, 0.5 * d, 0.5 * h})};
+      for (int k = 0; k < 2; ++k)
+        parts.push_back(box({0, -0.5 * d - 0.01, (k == 0 ? 0.3 : 0.72) * h}, {0.5 * w - 0.04, 0.01, 0.17 * h}));
+      builder.add(SynthClass::cabinet, "cabinet_" + name, place(0.5 * d), parts,
+                  rng.uniform() < 0.5 ? wood(rng, 0.11) : painted(rng, SynthPattern::stripes, 0.12));
+      break;
+    }
+    case 1: {  // open shelf
+      const double w = rng.uniform(0.8, 1.0), h = rng.uniform(1.5, 1.9), d = 0.34;
+      std::vector<SynthPrimitive> parts;
+      for (int side = -1; side <= 1; side += 2)
+        parts.push_back(box({side * (0.5 * w - 0.015), 0, 0.5 * h}, {0.015, 0.5 * d, 0.5 * h}));
+      parts.push_back(box({0, 0.5 * d - 0.01, 0.5 * h}, {0.5 * w, 0.01, 0.5 * h}));
+      for (int k = 0; k < 4; ++k)
+        parts.push_back(box({0, 0, 0.04 + (h - 0.06) * k / 3.0}, {0.5 * w - 0.03, 0.5 * d - 0.02, 0.015}));
+      builder.add(SynthClass::shelf, "shelf_" + name, place(0.5 * d), parts, wood(rng, 0.1));
+      break;
+    }
+    case 2: {  // potted plant
+      const double pot_r = rng.uniform(0.15, 0.19), pot_h = rng.uniform(0.35, 0.45);
+      std::vector<SynthPrimitive> parts = {cylinder({0, 0, 0}, pot_r, pot_h)};
+      for (int k = 0; k < 3; ++k) {
+        const double a = 2.0 * kPi * k / 3.0 + rng.uniform(-0.4, 0.4);
+        parts.push_back(sphere({0.1 * std::cos(a), 0.1 * std::sin(a), pot_h + rng.uniform(0.2, 0.45)},
+                               rng.uniform(0.15, 0.2)));
+      }
+      builder.add(SynthClass::plant, "plant_" + name, place(0.28), parts,
+                  material(rng, SynthPattern::noise, hsv(rng.uniform(0.25, 0.35), 0.6, 0.6),
+                           hsv(rng.uniform(0.22, 0.3), 0.7, 0.3), 0.05, 0.2, 0.15));
+      break;
+    }
+    default: {  // storage box
+      const Vector3d half(rng.uniform(0.2, 0.26), rng.uniform(0.2, 0.26), rng.uniform(0.18, 0.3));
+      auto [a, b] = two_tone(rng, rng.uniform(0.08, 0.11), 0.45, 0.7);
+      SynthMaterial cardboard = material(rng, SynthPattern::stripes, a, b, 0.1, 0.05, 0.2);
+      cardboard.axis = Vector3d(0.0, 1.0, 0.4).normalized();
+      builder.add(SynthClass::box, "box_" + name, place(half.y() + 0.02), {box({0, 0, half.z()}, half)},
+                  cardboard);
+      break;
+    }
+  }
+}
+
+// A picture on a wall: a thin board at eye height, `at` on the wall, `n` into the corridor.
+void add_wall_picture(Rng& rng, const std::string& name, const Vector3d& at, const Vector3d& n,
+                      RoomBuilder& builder) {
+  const double w = rng.uniform(0.45, 0.7), h = rng.uniform(0.35, 0.5);
+  auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
+  const SynthMaterial paint = material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
+  builder.add(SynthClass::picture, "picture_" + name,
+              pose(at + Vector3d(0, 0, rng.uniform(1.35, 1.6)), std::atan2(n.x(), -n.y())),
+              {box({0, -0.012, 0}, {0.5 * w, 0.012, 0.5 * h})}, paint);
+}
+
 }  // namespace
 
 SyntheticRoom make_room(std::uint64_t seed) {
@@ -555,16 +620,80 @@ SyntheticRoom make_hall(std::uint64_t seed) {
   return hall;
 }
 
-SyntheticRoom make_scene(SynthScene scene, std::uint64_t seed) {
-  return scene == SynthScene::hall ? make_hall(seed) : make_room(seed);
+SyntheticRoom make_ring(std::uint64_t seed) {
+  Rng rng(synth::stream_seed(seed, synth::Stream::room));
+  SyntheticRoom ring;
+  ring.scene = SynthScene::ring;
+  const double W = rng.uniform(13.5, 15.0), D = rng.uniform(8.5, 9.5), H = rng.uniform(2.6, 2.8);
+  const double c = rng.uniform(2.3, 2.6);  // the corridor's width
+  ring.size = {W, D, H};
+  RoomBuilder builder(&ring);
+  add_structure(rng, W, D, H, builder);
+  builder.add(SynthClass::wall, "wall_block", pose({0.5 * W, 0.5 * D, 0.0}),
+              {box({0, 0, 0.5 * H}, {0.5 * W - c, 0.5 * D - c, 0.5 * H})}, wall_material(rng, rng.below(4)));
+  // The corridor's walls, counter-clockwise as the camera goes: outer south, east, north, west,
+  // then the block's faces; each from `a` to `b` with its normal into the corridor and a fixed
+  // number of pieces (so the instance list is the same for every seed).
+  struct WallRun {
+    const char* name;
+    Vector3d a, b, n;
+    int pieces, pictures;
+  };
+  const double m = 1.0;  // metres kept free at the outer corners
+  const WallRun runs[8] = {
+      {"s", {m, 0, 0}, {W - m, 0, 0}, Vector3d::UnitY(), 5, 2},
+      {"e", {W, m, 0}, {W, D - m, 0}, -Vector3d::UnitX(), 3, 1},
+      {"n", {W - m, D, 0}, {m, D, 0}, -Vector3d::UnitY(), 5, 2},
+      {"w", {0, D - m, 0}, {0, m, 0}, Vector3d::UnitX(), 3, 1},
+      {"bs", {c + 0.3, c, 0}, {W - c - 0.3, c, 0}, -Vector3d::UnitY(), 4, 1},
+      {"be", {W - c, c + 0.3, 0}, {W - c, D - c - 0.3, 0}, Vector3d::UnitX(), 2, 1},
+      {"bn", {W - c - 0.3, D - c, 0}, {c + 0.3, D - c, 0}, Vector3d::UnitY(), 4, 1},
+      {"bw", {c, D - c - 0.3, 0}, {c, c + 0.3, 0}, -Vector3d::UnitX(), 2, 1},
+  };
+  int kind = 0;
+  for (const WallRun& run : runs) {
+    const Vector3d along = run.b - run.a;
+    for (int k = 0; k < run.pieces; ++k) {
+      const double u = (k + 0.5 + rng.uniform(-0.15, 0.15)) / run.pieces;
+      add_wall_piece(rng, kind++ % 4, std::string(run.name) + "_" + std::to_string(k + 1), run.a + u * along, run.n,
+                     builder);
+    }
+    for (int k = 0; k < run.pictures; ++k) {
+      // In a gap between two pieces (the pieces stand at (k + 1/2) / pieces of the run).
+      const double u = std::floor((k + 0.5) * run.pieces / run.pictures) / run.pieces;
+      add_wall_picture(rng, std::string(run.name) + "_" + std::to_string(k + 1), run.a + u * along, run.n, builder);
+    }
+  }
+  // The camera zone: the box the ring path's centre line spans (the block inside it is not free).
+  ring.camera_zone = Eigen::AlignedBox3d(Vector3d(0.5 * c, 0.5 * c, 1.35), Vector3d(W - 0.5 * c, D - 0.5 * c, 1.6));
+  ring.light_position = {0.5 * W, 0.5 * D, H - 0.25};  // above the block: its faces get ambient light only
+  ring.look_at = {0.5 * W, 0.5 * D, 0.9};
+  return ring;
 }
 
-const char* to_string(SynthScene scene) { return scene == SynthScene::hall ? "hall" : "room"; }
+SyntheticRoom make_scene(SynthScene scene, std::uint64_t seed) {
+  switch (scene) {
+    case SynthScene::hall: return make_hall(seed);
+    case SynthScene::ring: return make_ring(seed);
+    case SynthScene::room: break;
+  }
+  return make_room(seed);
+}
+
+const char* to_string(SynthScene scene) {
+  switch (scene) {
+    case SynthScene::hall: return "hall";
+    case SynthScene::ring: return "ring";
+    case SynthScene::room: break;
+  }
+  return "room";
+}
 
 bool parse_synth_scene(const std::string& text, SynthScene* scene, std::string* why) {
   if (text == "room") return *scene = SynthScene::room, true;
   if (text == "hall") return *scene = SynthScene::hall, true;
-  if (why) *why = "unknown synthetic scene '" + text + "' (room or hall)";
+  if (text == "ring") return *scene = SynthScene::ring, true;
+  if (why) *why = "unknown synthetic scene '" + text + "' (room, hall or ring)";
   return false;
 }
 

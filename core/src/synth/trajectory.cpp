@@ -123,6 +123,54 @@ Trajectory hall_loop_trajectory(const SyntheticRoom& hall, const SynthOptions& o
   return trajectory;
 }
 
+// The ring's loop: the corridor's centre line (c/2 in from the outer walls) counter-clockwise,
+// east along the south side first, at constant speed, its corners rounded with radius kR; the
+// view looks ahead, swept sideways six times a lap and tilted down a little. Periodic in the lap.
+Trajectory ring_loop_trajectory(const SyntheticRoom& ring, const SynthOptions& options) {
+  constexpr double kR = 1.0;  // m, radius of the rounded corners
+  const double x0 = ring.camera_zone.min().x() + kR, x1 = ring.camera_zone.max().x() - kR;
+  const double y0 = ring.camera_zone.min().y() + kR, y1 = ring.camera_zone.max().y() - kR;
+  const double corner = 0.25 * kTwoPi * kR;
+  const double legs[4] = {x1 - x0, y1 - y0, x1 - x0, y1 - y0};  // south, east, north, west
+  const Vector3d starts[4] = {{x0, y0 - kR, 0}, {x1 + kR, y0, 0}, {x1, y1 + kR, 0}, {x0 - kR, y1, 0}};
+  const Vector3d centres[4] = {{x1, y0, 0}, {x1, y1, 0}, {x0, y1, 0}, {x0, y0, 0}};  // of the corner after each leg
+  const double length = 2.0 * (legs[0] + legs[1]) + 4.0 * corner;
+  const double lap_frames = static_cast<double>(options.frames) / options.laps;
+  Trajectory trajectory;
+  trajectory.reserve(options.frames);
+  for (std::size_t i = 0; i < options.frames; ++i) {
+    const double lap = static_cast<double>(i) / lap_frames;
+    const double s_lap = lap - std::floor(lap);  // position in the lap, [0, 1)
+    double s = s_lap * length;
+    Vector3d p;
+    double heading = 0.0;  // direction of travel, yaw from world +x
+    for (int side = 0; side < 4; ++side) {
+      const double side_heading = 0.25 * kTwoPi * side;
+      if (s < legs[side]) {
+        p = starts[side] + s * Vector3d(std::cos(side_heading), std::sin(side_heading), 0.0);
+        heading = side_heading;
+        break;
+      }
+      s -= legs[side];
+      if (s < corner || side == 3) {
+        const double a = std::min(s, corner) / kR;  // turned so far in this corner, rad
+        const double phi = side_heading - 0.25 * kTwoPi + a;  // from the corner's centre
+        p = centres[side] + kR * Vector3d(std::cos(phi), std::sin(phi), 0.0);
+        heading = side_heading + a;
+        break;
+      }
+      s -= corner;
+    }
+    p.z() = ring.camera_zone.center().z() + 0.06 * std::sin(3.0 * kTwoPi * s_lap);
+    const double gaze = heading + 15.0 * kDeg * std::sin(6.0 * kTwoPi * s_lap);
+    const Vector3d forward(std::cos(gaze), std::sin(gaze), -0.15 + 0.05 * std::sin(5.0 * kTwoPi * s_lap));
+    const Matrix3d R = look_along(forward) *
+                       Eigen::AngleAxisd(2.0 * kDeg * std::sin(4.0 * kTwoPi * s_lap), Vector3d::UnitZ()).toRotationMatrix();
+    trajectory.push_back(frame_pose(i, R, p));
+  }
+  return trajectory;
+}
+
 }  // namespace
 
 const char* to_string(SynthPath path) { return path == SynthPath::loop ? "loop" : "wander"; }
@@ -136,7 +184,12 @@ bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why
 
 Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options) {
   if (options.path == SynthPath::loop) {
-    return room.scene == SynthScene::hall ? hall_loop_trajectory(room, options) : loop_trajectory(room, options);
+    switch (room.scene) {
+      case SynthScene::hall: return hall_loop_trajectory(room, options);
+      case SynthScene::ring: return ring_loop_trajectory(room, options);
+      case SynthScene::room: break;
+    }
+    return loop_trajectory(room, options);
   }
   synth::Rng rng(synth::stream_seed(options.seed, synth::Stream::trajectory));
   const Vector3d centre = room.camera_zone.center();

@@ -70,10 +70,12 @@ bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why
 
 // The scene: one furnished room (about 4.5 x 4 m, smaller than the tracker's 4-m local map), or
 // a hall of three such room halves on each long side (about 13 x 8 m), whose loop path runs
-// along both sides so that a lap leaves the local map and comes back (loop closure with drift).
-enum class SynthScene { room, hall };
+// along both sides so that a lap leaves the local map and comes back (loop closure with drift),
+// or a ring: a corridor about 2.5 m wide round a walled block (about 14 x 9 m outside), whose
+// loop path walks round it looking ahead, so that each place is seen only when passed.
+enum class SynthScene { room, hall, ring };
 const char* to_string(SynthScene scene);
-// Accepts "room" and "hall".
+// Accepts "room", "hall" and "ring".
 bool parse_synth_scene(const std::string& text, SynthScene* scene, std::string* why);
 
 struct SynthOptions {
@@ -160,7 +162,12 @@ SyntheticRoom make_room(std::uint64_t seed);
 // names suffixed _n1 .. _n3), and three on the south side turned half a turn about the hall's
 // centre (_s1 .. _s3). The camera zone is the corridor between them.
 SyntheticRoom make_hall(std::uint64_t seed);
-// make_room or make_hall.
+// The ring for `seed`: a walled block (instance wall_block) in the middle of a room, leaving a
+// corridor about 2.5 m wide all round; along the corridor's walls stand cabinets, shelves,
+// plants and storage boxes and hang pictures (names suffixed by the wall: _s, _e, _n, _w outside,
+// _bs .. _bw on the block, and a number). The camera zone is the box the ring's centre line spans.
+SyntheticRoom make_ring(std::uint64_t seed);
+// make_room, make_hall or make_ring.
 SyntheticRoom make_scene(SynthScene scene, std::uint64_t seed);
 
 // Signed distance (m) from a world point to the nearest surface of the room: positive inside
@@ -174,7 +181,9 @@ double synth_clearance(const SyntheticRoom& room, const Eigen::Vector3d& p_world
 // furniture, `laps` times in `frames` frames; frame k * frames / laps is the start pose again.
 // In a hall the loop runs east along the corridor looking at the north bays, turns at the east
 // end looking back down the corridor, runs west looking at the south bays and turns at the west
-// end: the view turns 360 degrees a lap, never towards a bare end wall.
+// end: the view turns 360 degrees a lap, never towards a bare end wall. In a ring the loop walks
+// the corridor's centre line counter-clockwise looking ahead (swept from side to side), with
+// rounded corners.
 Trajectory make_trajectory(const SyntheticRoom& room, const SynthOptions& options);
 
 struct SynthView {
