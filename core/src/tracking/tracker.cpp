@@ -246,8 +246,14 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
 
   // 2. Register against the local map from the constant-velocity prediction (eq. gicp_pose /
   //    eq. feat_gicp when the map carries opacities and features).
-  const Eigen::Isometry3d T_predicted =
-      config_.constant_velocity && T_velocity_ ? *T_last_ * *T_velocity_ : *T_last_;
+  //    The prediction is re-orthonormalised: the product T_{k-1} T_{k-2}^-1 T_{k-1} (inverse()
+  //    assumes a rotation) otherwise compounds its rounding from frame to frame until a pose is
+  //    not finite (the ring with --constant-velocity, at frame 3,400).
+  Eigen::Isometry3d T_predicted = *T_last_;
+  if (config_.constant_velocity && T_velocity_) {
+    const Eigen::Isometry3d T_moved = orthonormalise((*T_last_ * *T_velocity_).matrix());
+    if (is_finite(T_moved)) T_predicted = T_moved;
+  }
   GicpResult gicp = register_frame(source, T_predicted);
   result->state = TrackingState::ok;
 

@@ -53,11 +53,8 @@ struct TrackerConfig {
   // 0.95: on redkitchen every 20th frame a wrong basin kept 0.81 and right ones 0.86-1.0; at the
   // full rate 2 of 600 frames fall below it (docs/relocalisation.md).
   double wide_baseline_inlier_ratio = 0.95;
-  // Initial guess T_k = T_{k-1} (T_{k-2}^-1 T_{k-1}) instead of T_{k-1}. Off by default: measured
-  // on the synthetic room, GICP settles in a nearby local minimum of the nearest-neighbour cost,
-  // the velocity carries that error into the next prediction and the error grew ~2.5x per frame
-  // (0.3 mm -> 9 cm in six frames), while starting from T_{k-1} stayed below 0.4 mm
-  // (docs/tracking.md).
+  // Initial guess T_k = T_{k-1} (T_{k-2}^-1 T_{k-1}), re-orthonormalised, instead of T_{k-1}. Off
+  // by default: no more accurate (redkitchen 0-599 2.35 cm against 2.33; docs/tracking.md).
   bool constant_velocity = false;
   // Each keyframe overwrites the features of the map points it sees with its own latent there
   // (refresh_map_features). Off: a point keeps the feature of the first keyframe that stored it,
