@@ -835,6 +835,9 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     EXPECT_EQ(report["lost"].get<int>(), 0) << session;
     EXPECT_LT(l["max_error_m"].get<double>(), 0.03) << session;
     EXPECT_LT(l["median_error_m"].get<double>(), 0.01) << session;
+    std::printf("[localise] %s: median %.2f cm, max %.2f cm over %d frames\n", session.c_str(),
+                100.0 * l["median_error_m"].get<double>(), 100.0 * l["max_error_m"].get<double>(),
+                l["compared"].get<int>());
   }
 
   core::DatasetOptions dopts;
