@@ -22,9 +22,10 @@ struct LocalMapConfig {
   int max_points_per_voxel = 27;
   // Metres; voxels farther than this from the latest keyframe camera are dropped after each
   // insertion. 6 m (the preprocess max_depth) removes the synthetic hall's 33-40 cm step at its
-  // turn and lets loop closure remove 64 % of the ring's ATE (22 % at 4 m), but sessions that
-  // localise in a map built at 6 m are less accurate (ServiceSessionModes: median 1.0-1.1 cm
-  // against 0.70 cm), so the default stays 4 m until that is understood (docs/tracking.md).
+  // turn and lets loop closure remove more of the ring's ATE (seeds 1, 2: 64, 50 % against 22,
+  // 46 %); the default stays 4 m until the benchmark figures measured with it are re-measured
+  // (docs/tracking.md: a localise test's absolute error, 0.70 -> 1.0-1.1 cm, follows its map's
+  // builder, which drifts further at 6 m on that sequence).
   float radius = 4.0f;
   bool is_valid(std::string* why = nullptr) const;
 };
