@@ -4,6 +4,7 @@
 #include "fslam/core/tracking/tracker.hpp"
 
 #include <cmath>
+#include <functional>
 #include <optional>
 
 #include <gtest/gtest.h>
@@ -62,21 +63,37 @@ double rotation_error_deg(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b
   return rotation_angle(a.linear().transpose() * b.linear()) / kDeg;
 }
 
+// Tracks `trajectory` from its first ground-truth pose; no frame may be lost. Records whether
+// each frame became a keyframe (when `keyframe` is given), shows `each` every result and returns
+// the estimate.
+Trajectory track_all(Tracker* tracker, const Trajectory& trajectory,
+                     RgbdFrame (*frame_at)(const Eigen::Isometry3d&, std::int64_t),
+                     std::vector<bool>* keyframe = nullptr,
+                     const std::function<void(std::size_t, const TrackingResult&)>& each = {}) {
+  Trajectory estimate;
+  tracker->set_initial_pose(trajectory[0].T_world_camera);
+  for (std::size_t i = 0; i < trajectory.size(); ++i) {
+    TrackingResult result;
+    std::string why;
+    if (!tracker->track(frame_at(trajectory[i].T_world_camera, static_cast<std::int64_t>(i)), &result, &why)) {
+      ADD_FAILURE() << "frame " << i << ": " << why;
+      break;
+    }
+    EXPECT_NE(result.state, TrackingState::lost) << "frame " << i << ": " << result.message;
+    if (keyframe) keyframe->push_back(result.keyframe);
+    if (each) each(i, result);
+    estimate.push_back({trajectory[i].timestamp, result.T_world_camera});
+  }
+  return estimate;
+}
+
 TEST_F(TrackerOnSynthRoom, FollowsTheHandheldTrajectory) {
   for (bool parallel : {false, true}) {
     TrackerConfig c = config();
     c.parallel = parallel;
     Tracker tracker(c);
-    Trajectory estimate;
-    for (std::size_t i = 0; i < trajectory_->size(); ++i) {
-      const StampedPose& gt = (*trajectory_)[i];
-      if (i == 0) tracker.set_initial_pose(gt.T_world_camera);
-      TrackingResult result;
-      std::string why;
-      ASSERT_TRUE(tracker.track(frame_at(gt.T_world_camera, static_cast<std::int64_t>(i)), &result, &why)) << why;
-      EXPECT_NE(result.state, TrackingState::lost) << "frame " << i << ": " << result.message;
-      estimate.push_back({gt.timestamp, result.T_world_camera});
-    }
+    const Trajectory estimate = track_all(&tracker, *trajectory_, &TrackerOnSynthRoom::frame_at);
+    ASSERT_EQ(estimate.size(), trajectory_->size());
     AteResult ate;
     std::string why;
     ASSERT_TRUE(compute_ate(*trajectory_, estimate, AteConfig{}, &ate, &why)) << why;
@@ -93,17 +110,11 @@ TEST_F(TrackerOnSynthRoom, ConstantVelocityPredictionKeepsPosesRigid) {
   TrackerConfig c = config();
   c.constant_velocity = true;
   Tracker tracker(c);
-  Trajectory estimate;
-  for (std::size_t i = 0; i < trajectory_->size(); ++i) {
-    const StampedPose& gt = (*trajectory_)[i];
-    if (i == 0) tracker.set_initial_pose(gt.T_world_camera);
-    TrackingResult result;
-    std::string why;
-    ASSERT_TRUE(tracker.track(frame_at(gt.T_world_camera, static_cast<std::int64_t>(i)), &result, &why)) << why;
-    EXPECT_NE(result.state, TrackingState::lost) << "frame " << i << ": " << result.message;
+  const Trajectory estimate = track_all(&tracker, *trajectory_, &TrackerOnSynthRoom::frame_at, nullptr,
+                                        [](std::size_t i, const TrackingResult& result) {
     EXPECT_TRUE(is_rigid(result.T_world_camera.matrix(), 1e-9)) << "frame " << i;
-    estimate.push_back({gt.timestamp, result.T_world_camera});
-  }
+  });
+  ASSERT_EQ(estimate.size(), trajectory_->size());
   AteResult ate;
   std::string why;
   ASSERT_TRUE(compute_ate(*trajectory_, estimate, AteConfig{}, &ate, &why)) << why;
@@ -247,19 +258,6 @@ TEST_F(TrackerOnSynthRoom, BadInputIsAnErrorNotAState) {
 }
 
 // Tracks the suite's 40 frames; keyframes are described for relocalisation as they come.
-void track_all(Tracker* tracker, const Trajectory& trajectory,
-               RgbdFrame (*frame_at)(const Eigen::Isometry3d&, std::int64_t), std::vector<bool>* keyframe) {
-  tracker->set_initial_pose(trajectory[0].T_world_camera);
-  for (std::size_t i = 0; i < trajectory.size(); ++i) {
-    TrackingResult result;
-    std::string why;
-    ASSERT_TRUE(tracker->track(frame_at(trajectory[i].T_world_camera, static_cast<std::int64_t>(i)), &result, &why))
-        << why;
-    ASSERT_NE(result.state, TrackingState::lost) << i;
-    keyframe->push_back(result.keyframe);
-  }
-}
-
 TEST_F(TrackerOnSynthRoom, RelocalisesFramesWithNoPriorPose) {
   Tracker tracker(config());
   std::vector<bool> keyframe;
@@ -335,8 +333,7 @@ TEST_F(TrackerOnSynthRoom, KidnappedCameraIsRelocalisedBeforeItIsLost) {
   TrackerConfig off = config();
   off.relocalisation.enabled = false;
   Tracker plain(off);
-  std::vector<bool> unused;
-  track_all(&plain, *trajectory_, &TrackerOnSynthRoom::frame_at, &unused);
+  track_all(&plain, *trajectory_, &TrackerOnSynthRoom::frame_at);
   ASSERT_TRUE(plain.track(frame_at(gt, 100), &result, &why)) << why;
   EXPECT_TRUE(result.state == TrackingState::lost || translation_error(result.T_world_camera, gt) > 0.01)
       << result.message;
