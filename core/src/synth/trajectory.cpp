@@ -76,6 +76,13 @@ Trajectory loop_trajectory(const SyntheticRoom& room, const SynthOptions& option
 
 double smoothstep(double u) { return u * u * (3.0 - 2.0 * u); }
 
+// Where frame i is in its lap of a loop path, [0, 1): options.frames cover options.laps laps.
+double lap_position(std::size_t i, const SynthOptions& options) {
+  const double lap_frames = static_cast<double>(options.frames) / options.laps;
+  const double lap = static_cast<double>(i) / lap_frames;  // as the hall's figures were made
+  return lap - std::floor(lap);
+}
+
 // The hall's loop (a lap: east leg, east turn, west leg, west turn): the centre runs along the
 // corridor r north of its middle line going east and r south going west, joined by half circles
 // of radius r; the gaze looks at the north bays going east, swings through west (back down the
@@ -87,12 +94,10 @@ Trajectory hall_loop_trajectory(const SyntheticRoom& hall, const SynthOptions& o
   constexpr double kR = 0.3;                   // m, half the distance between the two legs
   const double x0 = hall.camera_zone.min().x(), x1 = hall.camera_zone.max().x();
   const double c = hall.camera_zone.center().y();
-  const double lap_frames = static_cast<double>(options.frames) / options.laps;
   Trajectory trajectory;
   trajectory.reserve(options.frames);
   for (std::size_t i = 0; i < options.frames; ++i) {
-    const double lap = static_cast<double>(i) / lap_frames;
-    const double s = lap - std::floor(lap);  // position in the lap, [0, 1)
+    const double s = lap_position(i, options);
     Vector3d p;
     double gaze = 0.0;  // yaw of the view from world +x, rad
     if (s < kLeg) {  // east leg, looking north
@@ -135,12 +140,10 @@ Trajectory ring_loop_trajectory(const SyntheticRoom& ring, const SynthOptions& o
   const Vector3d starts[4] = {{x0, y0 - kR, 0}, {x1 + kR, y0, 0}, {x1, y1 + kR, 0}, {x0 - kR, y1, 0}};
   const Vector3d centres[4] = {{x1, y0, 0}, {x1, y1, 0}, {x0, y1, 0}, {x0, y0, 0}};  // of the corner after each leg
   const double length = 2.0 * (legs[0] + legs[1]) + 4.0 * corner;
-  const double lap_frames = static_cast<double>(options.frames) / options.laps;
   Trajectory trajectory;
   trajectory.reserve(options.frames);
   for (std::size_t i = 0; i < options.frames; ++i) {
-    const double lap = static_cast<double>(i) / lap_frames;
-    const double s_lap = lap - std::floor(lap);  // position in the lap, [0, 1)
+    const double s_lap = lap_position(i, options);
     double s = s_lap * length;
     Vector3d p;
     double heading = 0.0;  // direction of travel, yaw from world +x
