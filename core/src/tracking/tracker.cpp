@@ -248,7 +248,7 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   //    eq. feat_gicp when the map carries opacities and features).
   //    The prediction is re-orthonormalised: the product T_{k-1} T_{k-2}^-1 T_{k-1} (inverse()
   //    assumes a rotation) otherwise compounds its rounding from frame to frame until a pose is
-  //    not finite (the ring with --constant-velocity, at frame 3,400).
+  //    not finite (the ring with --constant-velocity, before the end of its 3,600 frames).
   Eigen::Isometry3d T_predicted = *T_last_;
   if (config_.constant_velocity && T_velocity_) {
     const Eigen::Isometry3d T_moved = orthonormalise((*T_last_ * *T_velocity_).matrix());

@@ -105,7 +105,7 @@ TEST_F(TrackerOnSynthRoom, FollowsTheHandheldTrajectory) {
 // The constant-velocity prediction T_{k-1} (T_{k-2}^-1 T_{k-1}) is re-orthonormalised: unchecked,
 // its product compounded rounding frame by frame (every pose came out of the previous ones'
 // products), so that poses stopped being rigid and tracking failed (redkitchen 0-599: 18 cm
-// ATE; the ring: a non-finite pose at frame 3,400). Every pose stays a rotation to 1e-9.
+// ATE; the ring: a non-finite keyframe pose in 3,600 frames). Every pose stays a rotation to 1e-9.
 TEST_F(TrackerOnSynthRoom, ConstantVelocityPredictionKeepsPosesRigid) {
   TrackerConfig c = config();
   c.constant_velocity = true;
