@@ -94,6 +94,25 @@ SynthMaterial painted(Rng& rng, SynthPattern pattern, double period) {
   return m;
 }
 
+// Finishes the room and the ring share; each draws from `rng` in one fixed order.
+SynthMaterial cabinet_material(Rng& rng) {
+  return rng.uniform() < 0.5 ? wood(rng, 0.11) : painted(rng, SynthPattern::stripes, 0.12);
+}
+SynthMaterial leaves_material(Rng& rng) {
+  return material(rng, SynthPattern::noise, hsv(rng.uniform(0.25, 0.35), 0.6, 0.6),
+                  hsv(rng.uniform(0.22, 0.3), 0.7, 0.3), 0.05, 0.2, 0.15);
+}
+SynthMaterial cardboard_material(Rng& rng) {
+  auto [a, b] = two_tone(rng, rng.uniform(0.08, 0.11), 0.45, 0.7);
+  SynthMaterial m = material(rng, SynthPattern::stripes, a, b, 0.1, 0.05, 0.2);
+  m.axis = Vector3d(0.0, 1.0, 0.4).normalized();
+  return m;
+}
+SynthMaterial picture_material(Rng& rng) {
+  auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
+  return material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
+}
+
 void compute_bounds(SynthObject* object) {
   object->bounds.setEmpty();
   object->bounded = true;
@@ -372,7 +391,7 @@ void add_far_wall(Rng& rng, double W, double D, RoomBuilder& builder) {
     builder.add(
         SynthClass::cabinet, "cabinet",
         pose({0.8 + 0.5 * w + rng.uniform(0.0, 0.15), D - 0.5 * d, 0.0}, rng.uniform(-0.03, 0.03)),
-        parts, rng.uniform() < 0.5 ? wood(rng, 0.11) : painted(rng, SynthPattern::stripes, 0.12));
+        parts, cabinet_material(rng));
   }
   {
     const double w = rng.uniform(0.85, 1.0);
@@ -423,10 +442,7 @@ void add_corners(Rng& rng, double W, double D, RoomBuilder& builder) {
           sphere({0.12 * std::cos(a), 0.12 * std::sin(a), pot_h + rng.uniform(0.2, 0.45)},
                  rng.uniform(0.17, 0.24)));
     }
-    SynthMaterial leaves =
-        material(rng, SynthPattern::noise, hsv(rng.uniform(0.25, 0.35), 0.6, 0.6),
-                 hsv(rng.uniform(0.22, 0.3), 0.7, 0.3), 0.05, 0.2, 0.15);
-    builder.add(SynthClass::plant, "plant", pose({0.42, D - 0.42, 0.0}), parts, leaves);
+    builder.add(SynthClass::plant, "plant", pose({0.42, D - 0.42, 0.0}), parts, leaves_material(rng));
   }
   {
     const double height = rng.uniform(1.45, 1.6);
@@ -460,9 +476,7 @@ void add_side_walls(Rng& rng, double W, double D, RoomBuilder& builder) {
   {
     // A storage box with a ball on top.
     const Vector3d half(rng.uniform(0.2, 0.26), rng.uniform(0.2, 0.26), rng.uniform(0.18, 0.25));
-    auto [a, b] = two_tone(rng, rng.uniform(0.08, 0.11), 0.45, 0.7);
-    SynthMaterial cardboard = material(rng, SynthPattern::stripes, a, b, 0.1, 0.05, 0.2);
-    cardboard.axis = Vector3d(0.0, 1.0, 0.4).normalized();
+    const SynthMaterial cardboard = cardboard_material(rng);
     const Isometry3d T_world_box =
         pose({W - 0.1 - half.x(), D - rng.uniform(1.0, 1.2), 0.0}, rng.uniform(-0.2, 0.2));
     builder.add(SynthClass::box, "box_1", T_world_box, {box({0, 0, half.z()}, half)}, cardboard);
@@ -479,9 +493,7 @@ void add_pictures(Rng& rng, double W, double D, RoomBuilder& builder) {
   auto picture = [&](const std::string& name, const Vector3d& at, double yaw) {
     const double w = rng.uniform(0.45, 0.7);
     const double h = rng.uniform(0.35, 0.5);
-    auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
-    SynthMaterial paint =
-        material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
+    const SynthMaterial paint = picture_material(rng);
     builder.add(SynthClass::picture, name, pose(at, yaw),
                 {box({0, -0.012, 0}, {0.5 * w, 0.012, 0.5 * h})}, paint);
   };
@@ -502,14 +514,15 @@ TablePlacement furnish_far_half(Rng& rng, double W, double D, RoomBuilder& build
   return table;
 }
 
+// The yaw that turns an object's local +y (its back) against a wall whose normal into the room is n.
+double facing(const Vector3d& n) { return std::atan2(n.x(), -n.y()); }
 
 // One piece of furniture against a wall, its back to the wall: `at` is the point on the wall
 // (floor level) and `n` the wall's normal into the corridor. `kind` picks a cabinet, a shelf, a
 // plant or a storage box; each reaches at most 0.55 m out from the wall.
 void add_wall_piece(Rng& rng, int kind, const std::string& name, const Vector3d& at, const Vector3d& n,
                     RoomBuilder& builder) {
-  const double yaw = std::atan2(n.x(), -n.y());  // local +y (the back) towards the wall
-  const auto place = [&](double depth) { return pose(at + depth * n, yaw + rng.uniform(-0.03, 0.03)); };
+  const auto place = [&](double depth) { return pose(at + depth * n, facing(n) + rng.uniform(-0.03, 0.03)); };
   switch (kind) {
     case 0: {  // cabinet with two drawers
       const double w = rng.uniform(0.7, 1.0), h = rng.uniform(0.8, 1.15), d = 0.42;
@@ -517,7 +530,7 @@ void add_wall_piece(Rng& rng, int kind, const std::string& name, const Vector3d&
       for (int k = 0; k < 2; ++k)
         parts.push_back(box({0, -0.5 * d - 0.01, (k == 0 ? 0.3 : 0.72) * h}, {0.5 * w - 0.04, 0.01, 0.17 * h}));
       builder.add(SynthClass::cabinet, "cabinet_" + name, place(0.5 * d), parts,
-                  rng.uniform() < 0.5 ? wood(rng, 0.11) : painted(rng, SynthPattern::stripes, 0.12));
+                  cabinet_material(rng));
       break;
     }
     case 1: {  // open shelf
@@ -539,18 +552,13 @@ void add_wall_piece(Rng& rng, int kind, const std::string& name, const Vector3d&
         parts.push_back(sphere({0.1 * std::cos(a), 0.1 * std::sin(a), pot_h + rng.uniform(0.2, 0.45)},
                                rng.uniform(0.15, 0.2)));
       }
-      builder.add(SynthClass::plant, "plant_" + name, place(0.28), parts,
-                  material(rng, SynthPattern::noise, hsv(rng.uniform(0.25, 0.35), 0.6, 0.6),
-                           hsv(rng.uniform(0.22, 0.3), 0.7, 0.3), 0.05, 0.2, 0.15));
+      builder.add(SynthClass::plant, "plant_" + name, place(0.28), parts, leaves_material(rng));
       break;
     }
     default: {  // storage box
       const Vector3d half(rng.uniform(0.2, 0.26), rng.uniform(0.2, 0.26), rng.uniform(0.18, 0.3));
-      auto [a, b] = two_tone(rng, rng.uniform(0.08, 0.11), 0.45, 0.7);
-      SynthMaterial cardboard = material(rng, SynthPattern::stripes, a, b, 0.1, 0.05, 0.2);
-      cardboard.axis = Vector3d(0.0, 1.0, 0.4).normalized();
       builder.add(SynthClass::box, "box_" + name, place(half.y() + 0.02), {box({0, 0, half.z()}, half)},
-                  cardboard);
+                  cardboard_material(rng));
       break;
     }
   }
@@ -560,10 +568,8 @@ void add_wall_piece(Rng& rng, int kind, const std::string& name, const Vector3d&
 void add_wall_picture(Rng& rng, const std::string& name, const Vector3d& at, const Vector3d& n,
                       RoomBuilder& builder) {
   const double w = rng.uniform(0.45, 0.7), h = rng.uniform(0.35, 0.5);
-  auto [a, b] = two_tone(rng, rng.uniform(), 0.6, 0.85);
-  const SynthMaterial paint = material(rng, SynthPattern::noise, a, hsv(rng.uniform(), 0.7, 0.45), 0.08, 0.03, 0.2);
-  builder.add(SynthClass::picture, "picture_" + name,
-              pose(at + Vector3d(0, 0, rng.uniform(1.35, 1.6)), std::atan2(n.x(), -n.y())),
+  const SynthMaterial paint = picture_material(rng);
+  builder.add(SynthClass::picture, "picture_" + name, pose(at + Vector3d(0, 0, rng.uniform(1.35, 1.6)), facing(n)),
               {box({0, -0.012, 0}, {0.5 * w, 0.012, 0.5 * h})}, paint);
 }
 
