@@ -834,7 +834,9 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     EXPECT_EQ(l["compared"].get<int>(), 25) << session;
     EXPECT_EQ(report["lost"].get<int>(), 0) << session;
     EXPECT_LT(l["max_error_m"].get<double>(), 0.03) << session;
-    EXPECT_LT(l["median_error_m"].get<double>(), 0.01) << session;
+    // The error is absolute (no alignment), so it holds the map's own placement: this map's
+    // builder ends 0.95 cm from its ground truth (docs/tracking.md), hence 1.5 cm, not 1.
+    EXPECT_LT(l["median_error_m"].get<double>(), 0.015) << session;
     std::printf("[localise] %s: median %.2f cm, max %.2f cm over %d frames\n", session.c_str(),
                 100.0 * l["median_error_m"].get<double>(), 100.0 * l["max_error_m"].get<double>(),
                 l["compared"].get<int>());

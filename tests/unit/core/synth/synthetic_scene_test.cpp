@@ -276,7 +276,7 @@ Trajectory check_large_loop(const SyntheticRoom& scene, std::uint64_t seed, doub
   if (trajectory.size() != options.frames) return trajectory;
   const std::string what = std::string(to_string(scene.scene)) + " seed " + std::to_string(seed);
   const LoopSteps steps = check_loop(scene, trajectory, 1800, what);
-  EXPECT_GT(steps.farthest, 8.0) << what << ": a lap must leave the 4-m local map";
+  EXPECT_GT(steps.farthest, 8.0) << what << ": a lap must leave the 6-m local map";
   EXPECT_LT(steps.step_max, max_step) << what;
   EXPECT_LT(steps.angle_max, max_angle) << what;
   return trajectory;
@@ -305,7 +305,7 @@ TEST(SynthTrajectory, HallLoopLeavesTheLocalMapAndReturnsEveryLap) {
 
 // The ring's loop (make_ring): back at the start pose every lap, always in free space (never
 // inside the block), round the whole ring (its far side more than 8 m from the start: out of the
-// 4-m local map), at walking pace (3,600 frames in 2 laps: under 2.2 cm and 1.6 degrees a frame).
+// 6-m local map), at walking pace (3,600 frames in 2 laps: under 2.2 cm and 1.6 degrees a frame).
 // Its instances are named uniquely and are the same for every seed.
 TEST(SynthTrajectory, RingLoopGoesRoundTheBlockAndReturnsEveryLap) {
   std::vector<std::string> first_names;

@@ -68,7 +68,7 @@ const char* to_string(SynthPath path);
 // Accepts "wander" and "loop".
 bool parse_synth_path(const std::string& text, SynthPath* path, std::string* why);
 
-// The scene: one furnished room (about 4.5 x 4 m, smaller than the tracker's 4-m local map), or
+// The scene: one furnished room (about 4.5 x 4 m, smaller than the tracker's 6-m local map), or
 // a hall of three such room halves on each long side (about 13 x 8 m), whose loop path runs
 // along both sides so that a lap leaves the local map and comes back (loop closure with drift),
 // or a ring: a corridor about 2.5 m wide round a walled block (about 14 x 9 m outside), whose

@@ -21,12 +21,11 @@ struct LocalMapConfig {
                      // repeated observations average the sensor noise out; off: the first stays
   int max_points_per_voxel = 27;
   // Metres; voxels farther than this from the latest keyframe camera are dropped after each
-  // insertion. 6 m (the preprocess max_depth) removes the synthetic hall's 33-40 cm step at its
-  // turn and lets loop closure remove more of the ring's ATE (seeds 1, 2: 64, 50 % against 22,
-  // 46 %); the default stays 4 m until the benchmark figures measured with it are re-measured
-  // (docs/tracking.md: a localise test's absolute error, 0.70 -> 1.0-1.1 cm, follows its map's
-  // builder, which drifts further at 6 m on that sequence).
-  float radius = 4.0f;
+  // insertion. The preprocess max_depth (6 m): what the camera can see stays. At 4 m (the default
+  // until 2026-12-06) the synthetic hall's camera, turning to look back down it, slid 33-40 cm
+  // against a map that had dropped what it saw 4-6 m away, and loop closure removed less of the
+  // ring's drift (seeds 1, 2: 22, 46 % of the ATE against 64, 50 %; docs/tracking.md).
+  float radius = 6.0f;
   bool is_valid(std::string* why = nullptr) const;
 };
 
