@@ -262,8 +262,8 @@ TEST(SynthTrajectory, LoopReturnsToItsStartEveryLap) {
 }
 
 // A large scene's loop (hall or ring), 3,600 frames in 2 laps for `seed`: check_loop's checks,
-// farther from its start than twice the tracker's 4-m local-map radius, and every step under
-// `max_step` metres and `max_angle` radians. Returns the trajectory.
+// more than 8 m from its start (the start's surroundings leave the tracker's 6-m local map), and
+// every step under `max_step` metres and `max_angle` radians. Returns the trajectory.
 Trajectory check_large_loop(const SyntheticRoom& scene, std::uint64_t seed, double max_step, double max_angle) {
   SynthOptions options;
   options.seed = seed;
@@ -283,9 +283,9 @@ Trajectory check_large_loop(const SyntheticRoom& scene, std::uint64_t seed, doub
 }
 
 // The hall's loop (make_hall, the loop path in it): back at the start pose every lap, always in
-// free space, farther from its start than twice the tracker's 4-m local-map radius (so a lap
-// leaves the local map: loop closure has drift to remove), at walking pace (3,600 frames in 2
-// laps: under 2 cm and 1.3 degrees a frame). Its instances are named uniquely.
+// free space, more than 8 m from its start (so a lap leaves the tracker's 6-m local map: loop
+// closure has drift to remove), at walking pace (3,600 frames in 2 laps: under 2 cm and 1.3
+// degrees a frame). Its instances are named uniquely.
 TEST(SynthTrajectory, HallLoopLeavesTheLocalMapAndReturnsEveryLap) {
   for (std::uint64_t seed = 1; seed <= 3; ++seed) {
     const SyntheticRoom hall = make_hall(seed);
