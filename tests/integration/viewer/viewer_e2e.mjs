@@ -7,7 +7,7 @@
 // puppeteer-core is missing.
 //
 //   node viewer_e2e.mjs --bin BUILD/bin --web BUILD/viewer --modules client/gateway/web
-//       [--out DIR] [--frames N] [--rate HZ] [--weights F] [--room DIR] [--keep]
+//       [--out DIR] [--frames N] [--rate HZ] [--weights F] [--room DIR] [--keep] [--time-scale S]
 import { spawn, execFileSync } from "node:child_process";
 import { createRequire } from "node:module";
 import fs from "node:fs";
@@ -31,6 +31,10 @@ const frames = Number(args.frames || 40);
 // growing in small steps for the update-rate figure.
 const rate = args.rate || "2";
 const chromium = process.env.FSLAM_CHROMIUM || "/usr/bin/chromium";
+// The deadlines of the waits for the server (until() and the stream's --timeout) are multiplied
+// by $FSLAM_TEST_TIME_SCALE, else --time-scale (the build's default, tests/CMakeLists.txt: 4 under
+// ASan, 8 under TSan, whose servers map that much slower).
+const timeScale = Math.max(1, Number(process.env.FSLAM_TEST_TIME_SCALE || args["time-scale"] || 1));
 const t0 = Date.now();
 const log = (...m) => console.log(`[${((Date.now() - t0) / 1000).toFixed(1)} s]`, ...m);
 
@@ -68,7 +72,7 @@ function stopAll() {
 process.on("exit", stopAll);
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 async function until(what, fn, timeoutMs = 60000, periodMs = 250) {
-  const end = Date.now() + timeoutMs;
+  const end = Date.now() + timeoutMs * timeScale;
   for (;;) {
     const v = await fn();
     if (v) return v;
@@ -149,7 +153,7 @@ try {
   // 3. Stream the room; the page shows the map as it grows.
   const stream = start("stream", path.join(bin, "fslam"), ["stream", "--dataset", seq, "--prefix", prefix,
     "--session", "e2e", "--map", "room", "--rate", rate, "--policy", "queue",  // every frame mapped: the same map on any machine
-    "--window", "2", "--timeout", "900"]);
+    "--window", "2", "--timeout", String(900 * timeScale)]);
   const snapshot = () => page.evaluate(() => {
     const src = document.getElementById("view");
     const c = document.createElement("canvas");
