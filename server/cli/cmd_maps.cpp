@@ -43,6 +43,10 @@ std::set<std::string> service_prefixes(const ClientArgs& args, int timeout_ms) {
 }
 
 int run_status(const StatusArgs& args) {
+  // Declared before the clients: their listener threads call the callback until they are
+  // destroyed (client.hpp).
+  std::mutex mutex;
+  std::map<std::pair<std::string, std::string>, client::StatusUpdate> latest;
   // One client per instance: each serves its status on its own prefix.
   std::vector<std::unique_ptr<client::Client>> clients;
   // As before the map directory: no server within --seconds is "no status".
@@ -52,8 +56,6 @@ int run_status(const StatusArgs& args) {
     options.prefix = prefix;
     clients.push_back(std::make_unique<client::Client>(options));
   }
-  std::mutex mutex;
-  std::map<std::pair<std::string, std::string>, client::StatusUpdate> latest;
   for (auto& client : clients) {
     client->on_status([&](const client::StatusUpdate& s) {
       std::lock_guard<std::mutex> lock(mutex);

@@ -281,13 +281,15 @@ int run_stream(const StreamArgs& args) {
   const std::string map = args.map.empty() ? args.session : args.map;
   client::ClientOptions copts;
   if (!locate_service(args.prefix, args.discovery, map, new_map, 10000, &copts, &why)) return fail(why);
-  client::Client client(copts);
+  // The state the callbacks write is declared before the client: its listener thread calls
+  // them until the client is destroyed (client.hpp).
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> poses;
   std::map<std::uint64_t, SendTimes> sent;
   std::map<std::uint64_t, TimePoint> arrived;
   std::map<std::uint64_t, std::string> skipped;  // frame -> why (live policy)
   std::atomic<std::size_t> errors{0}, views{0};
+  client::Client client(copts);
   client.on_view([&](const client::ViewUpdate& v) {
     if (v.session != args.session) return;
     ++views;

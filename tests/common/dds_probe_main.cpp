@@ -24,8 +24,8 @@ int main(int argc, char** argv) {
   options.prefix = argv[1];
   const double listen_s = std::atof(argv[2]);
   try {
+    std::atomic<int> poses{0}, status{0};  // outlive the client, whose listener calls the callbacks
     fslam::client::Client client(options);
-    std::atomic<int> poses{0}, status{0};
     client.on_pose([&](const fslam::client::PoseUpdate&) { ++poses; });
     client.on_status([&](const fslam::client::StatusUpdate&) { ++status; });
     const auto start = std::chrono::steady_clock::now();

@@ -97,8 +97,8 @@ std::atomic<std::int64_t> first_tracked_load0{-1};
 void stream(const Options& o, const Frames& frames, int index, Clock::time_point start, SessionCounts* counts) {
   fc::ClientOptions options;
   options.prefix = o.prefix;
+  const std::string session = "load" + std::to_string(index);  // read by the callbacks: outlives the client
   fc::Client client(options);
-  const std::string session = "load" + std::to_string(index);
   client.on_pose([&](const fc::PoseUpdate& p) {
     if (p.session != session) return;
     (p.skipped ? counts->skipped : counts->tracked).fetch_add(1);
@@ -271,9 +271,12 @@ int main(int argc, char** argv) {
         }
       });
     }
-    fc::Client probe(options);
+    // Declared before the probe: its listener calls the status callback until the probe is
+    // destroyed, so what the callback writes must outlive it (ASan: heap-use-after-free of
+    // `latest` when it was declared after the probe).
     std::mutex status_mutex;
     std::map<std::string, std::pair<double, double>> latest;  // map -> (resident MiB, Gaussians)
+    fc::Client probe(options);
     probe.on_status([&](const fc::StatusUpdate& s) {
       std::lock_guard<std::mutex> lock(status_mutex);
       latest[s.map_name] = {static_cast<double>(s.resident_bytes) / (1024.0 * 1024.0), static_cast<double>(s.map_gaussians)};
