@@ -270,7 +270,8 @@ class Client {
   static constexpr std::size_t kMaxCallsInFlight = 32;
 
   // Callbacks run on the client's listener thread until the client is destroyed: what they
-  // capture must outlive the client (declare it before the client).
+  // capture must outlive the client (declare it before the client), or the callback is cleared
+  // first (on_pose(nullptr) and the others wait for a call in progress to return).
   // Called on the client's listener thread for every pose the server publishes.
   void on_pose(std::function<void(const PoseUpdate&)> callback);
   // Called on the listener thread for results addressed to this client that no call is waiting
