@@ -193,7 +193,9 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
-  ASSERT_TRUE(c.close_session("live", test::scaled_ms(30000), &why)) << why;
+  // The close drains the session's keyframes through the mapper (SCHED_IDLE unless starved):
+  // not what this test checks, and under ASan with another test beside it past 120 s.
+  ASSERT_TRUE(c.close_session("live", test::scaled_ms(90000), &why)) << why;
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_EQ(outcomes.size(), kFrames) << "every frame gets an outcome";
   std::size_t skipped = 0;
