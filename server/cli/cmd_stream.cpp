@@ -14,6 +14,7 @@
 #include <string>
 #include <thread>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -139,7 +140,8 @@ client::FrameInput frame_input(const core::RgbdFrame& frame, double depth_scale,
 struct StreamOutcome {
   core::Trajectory trajectory;    // tracked frames (localise, extend: lost ones left out)
   std::size_t skipped = 0, errors = 0, missing = 0;
-  std::size_t lost = 0;           // localise, extend: frames lost (counted, not in trajectory)
+  // localise, extend: frames lost (not in trajectory), with the server's reason
+  std::vector<std::pair<std::uint64_t, std::string>> lost;
   std::size_t views = 0;          // localise --views: renders received at localised poses
   double elapsed = 0.0;  // seconds from the first frame to the last pose
   std::string close_error;  // empty when the server confirmed the close
@@ -179,9 +181,15 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
   if (args.mode != "map") {
     // The map's world is the ground truth's when it was streamed with it (the first frame's
     // pose), so a localised pose is compared with no alignment.
-    report["lost"] = o.lost;
+    report["lost"] = o.lost.size();
+    nlohmann::json lost_frames = nlohmann::json::array();
+    for (const auto& [id, note] : o.lost) {
+      lost_frames.push_back({{"frame_id", id}, {"note", note}});
+      std::fprintf(stderr, "frame %llu lost: %s\n", static_cast<unsigned long long>(id), note.c_str());
+    }
+    report["lost_frames"] = lost_frames;
     report["views"] = o.views;
-    std::printf("localised %zu of %zu frames in the map (%zu lost)", o.trajectory.size(), n, o.lost);
+    std::printf("localised %zu of %zu frames in the map (%zu lost)", o.trajectory.size(), n, o.lost.size());
     if (args.views_hz > 0) std::printf("; %zu views received", o.views);
     std::printf("\n");
     if (dataset.has_ground_truth()) {
@@ -402,7 +410,7 @@ int run_stream(const StreamArgs& args) {
     std::lock_guard<std::mutex> lock(mutex);
     for (const auto& [id, p] : poses) {
       if (!new_map && p.state == static_cast<int>(core::TrackingState::lost)) {
-        ++outcome.lost;
+        outcome.lost.emplace_back(id, p.note);
         continue;
       }
       core::StampedPose sp;
@@ -418,7 +426,7 @@ int run_stream(const StreamArgs& args) {
   outcome.elapsed = std::chrono::duration<double>(last_pose - start).count();
   outcome.errors = errors.load();
   outcome.views = views.load();
-  outcome.missing = n - std::min(n, outcome.trajectory.size() + outcome.lost + outcome.skipped + outcome.errors);
+  outcome.missing = n - std::min(n, outcome.trajectory.size() + outcome.lost.size() + outcome.skipped + outcome.errors);
   return report_stream(args, *dataset, outcome, latency_of(sent, arrived, poses), tracked_ids);
 }
 

@@ -50,6 +50,22 @@ nlohmann::json stream_report(const std::string& path) {
   return nlohmann::json::parse(in);
 }
 
+// A localise or extend session's report (`fslam stream --report`) over `frames` frames starting
+// at `first_frame`: every frame localised, except possibly the first (a session's first frame
+// relocalises with no prior pose and may miss; the next one relocalises again: docs/protocol.md
+// "Session modes"), and every localised position within 3 cm of ground truth. Lost frames are
+// listed with the server's reason.
+void expect_localised(const nlohmann::json& report, std::uint64_t first_frame, int frames, const std::string& context) {
+  ASSERT_TRUE(report.contains("localisation")) << context << ": " << report.dump();
+  const nlohmann::json& lost = report["lost_frames"];
+  EXPECT_LE(lost.size(), 1u) << context << ": " << lost.dump();
+  for (const nlohmann::json& f : lost)
+    EXPECT_EQ(f["frame_id"].get<std::uint64_t>(), first_frame) << context << ": lost after localising: " << lost.dump();
+  EXPECT_EQ(report["lost"].get<int>(), static_cast<int>(lost.size())) << context;
+  EXPECT_EQ(report["localisation"]["compared"].get<int>(), frames - static_cast<int>(lost.size())) << context;
+  EXPECT_LT(report["localisation"]["max_error_m"].get<double>(), 0.03) << context;
+}
+
 client::ClientOptions options_for(const std::string& prefix) {
   client::ClientOptions options;
   options.prefix = prefix;
@@ -831,11 +847,9 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   EXPECT_GT(renders.load(), 0) << "the querying client got no render while two sessions localised";
   for (const std::string session : {"ar1", "ar2"}) {
     const nlohmann::json report = stream_report(dir + "/" + session + ".json");
-    ASSERT_TRUE(report.contains("localisation")) << session << ": " << report.dump();
+    expect_localised(report, session == "ar1" ? 1 : 3, 25, session);
+    if (!report.contains("localisation")) continue;
     const nlohmann::json& l = report["localisation"];
-    EXPECT_EQ(l["compared"].get<int>(), 25) << session;
-    EXPECT_EQ(report["lost"].get<int>(), 0) << session;
-    EXPECT_LT(l["max_error_m"].get<double>(), 0.03) << session;
     // The error is absolute (no alignment), so it holds the map's own placement: this map's
     // builder ends 0.95 cm from its ground truth (docs/tracking.md), hence 1.5 cm, not 1.
     EXPECT_LT(l["median_error_m"].get<double>(), 0.015) << session;
@@ -851,6 +865,15 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   core::Trajectory localised;
   ASSERT_TRUE(core::read_tum_trajectory(dir + "/ar1.tum", &localised, &why)) << why;
   ASSERT_FALSE(localised.empty());
+  // ar1's localised frame nearest to dataset frame `index` (its first frame may have been lost).
+  const std::vector<std::size_t> ar1_ids =
+      stream_report(dir + "/ar1.json").value("tracked_frame_ids", std::vector<std::size_t>{});
+  ASSERT_FALSE(ar1_ids.empty());
+  const auto localised_near = [&](std::size_t index) {
+    return *std::min_element(ar1_ids.begin(), ar1_ids.end(), [&](std::size_t a, std::size_t b) {
+      return std::max(a, index) - std::min(a, index) < std::max(b, index) - std::min(b, index);
+    });
+  };
   client::Client c(options_for(prefix));
   ASSERT_TRUE(c.attach_map("room", test::scaled_ms(20000), &why)) << why;
   // The depth a request renders at ar1's localised pose of dataset frame `index` (false: the frame
@@ -871,7 +894,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
     q.depth_scale = 1000.0f;
     return c.render(q, r, test::scaled_ms(20000), &rwhy) && channel(*r, client::kDepth) != nullptr;
   };
-  for (const std::size_t index : {std::size_t{1}, std::size_t{49}, std::size_t{97}}) {
+  for (const std::size_t index : {localised_near(1), localised_near(49), localised_near(97)}) {
     core::RgbdFrame frame;
     client::RenderOutput r;
     ASSERT_TRUE(render_at_localised(index, &frame, &r)) << "frame " << index << " was not localised or rendered";
@@ -917,7 +940,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
         << refine_err;
     core::RgbdFrame frame;
     client::RenderOutput r;
-    ASSERT_TRUE(render_at_localised(49, &frame, &r));
+    ASSERT_TRUE(render_at_localised(localised_near(49), &frame, &r));
     EXPECT_GT(r.map_version, version_before) << "the refinement of the loaded map published no version";
     EXPECT_EQ(r.map_gaussians, gaussians_before);
     double coverage = 0;
@@ -962,11 +985,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   watcher.get();
   ASSERT_EQ(ext_rc, 0) << ext_out;
   {
-    const nlohmann::json report = stream_report(dir + "/ext.json");
-    ASSERT_TRUE(report.contains("localisation")) << report.dump();
-    EXPECT_EQ(report["lost"].get<int>(), 0) << ext_out;
-    EXPECT_EQ(report["localisation"]["compared"].get<int>(), 30);
-    EXPECT_LT(report["localisation"]["max_error_m"].get<double>(), 0.03) << ext_out;
+    expect_localised(stream_report(dir + "/ext.json"), 100, 30, ext_out);
   }
   EXPECT_GT(seen_gaussians.load(), gaussians_before) << "the querier never saw the map grow";
   EXPECT_GT(seen_version.load(), version_before) << "the extended map's versions go on from the loaded one's";
@@ -994,10 +1013,7 @@ TEST(ServiceSessionModes, LocaliseAndExtendASavedMapAfterARestart) {
   // (a) in the part the extension added: frames it never streamed localise there.
   const auto [rc3, out3] = localise("ar3", "141:160:4");
   ASSERT_EQ(rc3, 0) << out3;
-  const nlohmann::json report3 = stream_report(dir + "/ar3.json");
-  EXPECT_EQ(report3["lost"].get<int>(), 0) << out3;
-  EXPECT_EQ(report3["localisation"]["compared"].get<int>(), 5) << out3;
-  EXPECT_LT(report3["localisation"]["max_error_m"].get<double>(), 0.03) << out3;
+  expect_localised(stream_report(dir + "/ar3.json"), 141, 5, out3);
 }
 
 // Issue 19 over DDS: a map streamed with features (the decoded L_feat, tiny weights trained by
@@ -1036,10 +1052,7 @@ TEST(ServiceSessionModes, ExtendWithFeaturesContinuesTheMapsOnlineHeads) {
                             "--mode extend --map fmap --frames 60:90:2 --report " + dir + "/ext.json", &ext_out),
             0)
       << ext_out;
-  const nlohmann::json report = stream_report(dir + "/ext.json");
-  ASSERT_TRUE(report.contains("localisation")) << report.dump();
-  EXPECT_EQ(report["lost"].get<int>(), 0) << ext_out;
-  EXPECT_LT(report["localisation"]["max_error_m"].get<double>(), 0.03) << ext_out;
+  expect_localised(stream_report(dir + "/ext.json"), 60, 15, ext_out);
   {
     client::Client c(options_for(prefix));
     client::SegmentQuery q;
