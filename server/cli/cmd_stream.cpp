@@ -145,6 +145,7 @@ struct StreamOutcome {
   std::size_t views = 0;          // localise --views: renders received at localised poses
   double elapsed = 0.0;  // seconds from the first frame to the last pose
   std::string close_error;  // empty when the server confirmed the close
+  double close_s = 0.0;     // seconds from the close request to its answer (or to giving up)
 };
 
 // Prints the outcome, writes --out and --report; the exit code.
@@ -159,6 +160,7 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
               o.errors, o.missing, o.elapsed,
               static_cast<double>(o.trajectory.size()) / std::max(o.elapsed, 1e-9));
   print_latency(latency);
+  if (o.close_error.empty()) std::printf("session closed in %.1f s (the server maps what it accepted first)\n", o.close_s);
   if (!args.out.empty()) {
     if (!core::write_tum_trajectory(args.out, o.trajectory, &why)) return fail(why);
     std::printf("wrote %s\n", args.out.c_str());
@@ -168,7 +170,7 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
                            {"no_answer", o.missing},    {"seconds_to_last_pose", o.elapsed},
                            {"policy", args.policy},     {"rate", args.rate},
                            {"mode", args.mode},         {"closed", o.close_error.empty()},
-                           {"latency", latency_json(latency)}};
+                           {"close_s", o.close_s},      {"latency", latency_json(latency)}};
   report["tracked_frame_ids"] = tracked_ids;
   if (dataset.has_ground_truth() && !o.trajectory.empty()) {
     core::AteResult ate;
@@ -403,8 +405,10 @@ int run_stream(const StreamArgs& args) {
   // Closing waits for the server to finish mapping what it accepted (and to refine, with --refine).
   if (args.refine > 0) std::fprintf(stderr, "closing: the server maps what is left, then refines %u steps\n", args.refine);
   StreamOutcome outcome;
+  const auto close_start = std::chrono::steady_clock::now();
   if (!client.close_session(args.session, std::max(30, args.timeout_s) * 1000, &why, args.refine))
     outcome.close_error = why;
+  outcome.close_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - close_start).count();
   std::vector<std::uint64_t> tracked_ids;
   {
     std::lock_guard<std::mutex> lock(mutex);

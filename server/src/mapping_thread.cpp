@@ -6,6 +6,7 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <ctime>
 
@@ -76,7 +77,14 @@ void MappingThread::Priority::leave(pid_t tid) {
 
 void MappingThread::Priority::set_step(int step) {
   std::lock_guard<std::mutex> lock(mutex_);
-  step_ = step;
+  step_ = std::max(step, floor_);
+  for (const pid_t tid : threads_) apply(tid);
+}
+
+void MappingThread::Priority::set_floor(int step) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  floor_ = step;
+  step_ = std::max(step_, floor_);
   for (const pid_t tid : threads_) apply(tid);
 }
 
@@ -147,6 +155,10 @@ void MappingThread::guard_starvation(const core::SlamPipeline* pipeline) {
       cpu_since = cpu_seconds();
     }
   }
+}
+
+void MappingThread::finish_fairly() {
+  if (guarded_) priority_.set_floor(2);
 }
 
 MappingThread::~MappingThread() { join(); }

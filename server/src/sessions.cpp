@@ -406,6 +406,7 @@ void Sessions::finish_session(Session* s) {
   if (s->preparing.joinable()) s->preparing.join();
   if (s->tracking.joinable()) s->tracking.join();  // every accepted frame is tracked
   s->views.reset();  // the last view offered is sent
+  if (s->mapping) s->mapping->finish_fairly();  // the close waits for it: no longer background work
   s->pipeline->finish();
   if (s->mapping) s->mapping->join();
   if (s->localises()) return;  // the map was never the session's

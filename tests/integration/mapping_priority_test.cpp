@@ -152,5 +152,62 @@ TEST(MappingThreadUnderLoad, StarvedMappingIsLiftedWithItsWorkersThenGoesBackToI
   std::filesystem::remove_all(dir);
 }
 
+// A session's close waits for what its mapping has left (server/src/sessions.cpp
+// finish_session): from finish_fairly() on, mapping and its workers run at nice 0, and stay
+// there when the keyframes waiting are mapped (a background mapper would go back to SCHED_IDLE,
+// and a close under load took 37-39 s instead of 8-9: docs/reliability.md).
+TEST(MappingThreadUnderLoad, AFinishingSessionsMappingLeavesIdleAndStaysThereUntilItEnds) {
+  if (!server::MappingThread::can_leave_idle()) {
+    GTEST_SKIP() << "this process may not leave SCHED_IDLE (no CAP_SYS_NICE, RLIMIT_NICE below 20)";
+  }
+  const std::string dir = test::fresh_temp_dir("finishing").string();
+  std::string out, err;
+  ASSERT_EQ(test::run_command(test::fslam_bin() + " synth --out " + dir + " --frames 30 --seed 7", &out, &err), 0)
+      << out << err;
+  std::string why;
+  core::DatasetOptions options;
+  const auto dataset = core::open_dataset(dir, options, &why);
+  ASSERT_TRUE(dataset) << why;
+
+  core::PipelineConfig config;
+  config.realtime = true;
+  core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
+  std::atomic<int> mapped{0};
+  server::MappingThread mapping(&pipeline, 1, true, [&](const core::KeyframeReport&) { ++mapped; }, nullptr);
+  struct Finish {  // before `mapping` is joined, however the test ends
+    core::SlamPipeline* pipeline;
+    ~Finish() { pipeline->finish(); }
+  } finish{&pipeline};
+  // While the session streams, mapping is background work: its thread runs under SCHED_IDLE.
+  const auto started = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(10));
+  while (idle_threads() == 0 && std::chrono::steady_clock::now() < started)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  EXPECT_GE(idle_threads(), 1) << "the mapping thread did not start under SCHED_IDLE";
+  EXPECT_EQ(mapping.priority_step(), 0);
+
+  std::size_t keyframes = 0;
+  for (std::size_t i = 0; i < dataset->size(); ++i) {
+    core::RgbdFrame frame;
+    core::TrackingResult result;
+    ASSERT_TRUE(dataset->load(i, &frame, &why) && pipeline.process_frame(frame, &result, &why)) << why;
+    keyframes += result.keyframe ? 1 : 0;
+  }
+  ASSERT_GE(keyframes, 2u);
+  const int to_map = static_cast<int>(keyframes - pipeline.keyframes_left_out());
+
+  mapping.finish_fairly();
+  EXPECT_EQ(mapping.priority_step(), 2);
+  EXPECT_EQ(idle_threads(), 0) << "a thread working for the finishing mapper is still SCHED_IDLE";
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(120));
+  while (mapped.load() < to_map && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  ASSERT_EQ(mapped.load(), to_map);
+  EXPECT_EQ(mapping.priority_step(), 2) << "mapping went back to SCHED_IDLE while its session closes";
+  EXPECT_EQ(idle_threads(), 0);
+  pipeline.finish();
+  mapping.join();
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace fslam

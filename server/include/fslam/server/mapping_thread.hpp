@@ -24,7 +24,8 @@ namespace fslam::server {
 // step, to kStarvedMappingNice; still starved there for another window (several sessions with
 // features on fill every core at nice 0), one more, to nice 0, where it gets a fair share. Each
 // step lifts the TBB workers working for it too. It goes back to SCHED_IDLE once no keyframe
-// waits after one is mapped. Leaving SCHED_IDLE needs CAP_SYS_NICE or an RLIMIT_NICE of 20;
+// waits after one is mapped. When the session closes (finish_fairly()), what mapping has left is
+// what its client waits for: nice 0 until the end. Leaving SCHED_IDLE needs CAP_SYS_NICE or an RLIMIT_NICE of 20;
 // without them (a container without --cap-add SYS_NICE) mapping runs at kStarvedMappingNice
 // throughout, and TBB workers that worked for it stay there (docs/mapping.md).
 constexpr double kMappingStarvationSeconds = 2.0;
@@ -44,6 +45,11 @@ class MappingThread {
   MappingThread(const MappingThread&) = delete;
   MappingThread& operator=(const MappingThread&) = delete;
 
+  // The session's frames are all tracked and its close waits for what mapping has left: from now
+  // on mapping and its workers run at nice 0 (a fair share beside other sessions' tracking, not
+  // what they leave over), where this process may leave SCHED_IDLE; no-op otherwise.
+  void finish_fairly();
+
   // Waits for the loop to end (call pipeline->finish() first).
   void join();
 
@@ -59,7 +65,8 @@ class MappingThread {
    public:
     void enter(pid_t tid);  // a thread starts working for mapping: set to the current step
     void leave(pid_t tid);  // a thread stops working for mapping: back to normal priority
-    void set_step(int step);
+    void set_step(int step);  // never below the floor
+    void set_floor(int step);  // and raises the step to it
     int step() const;
 
    private:
@@ -67,6 +74,7 @@ class MappingThread {
     mutable std::mutex mutex_;
     std::set<pid_t> threads_;
     int step_ = 0;
+    int floor_ = 0;
   };
 
  private:
