@@ -9,7 +9,9 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <sstream>
+#include <string>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -77,6 +79,45 @@ class CpuHog {
   std::thread thread_;
 };
 
+// A synthetic room of `frames` frames (seed 7) in a fresh folder, opened.
+std::unique_ptr<core::Dataset> synthetic_room(const std::string& name, int frames, std::string* dir) {
+  *dir = test::fresh_temp_dir(name).string();
+  std::string out, err, why;
+  if (test::run_command(test::fslam_bin() + " synth --out " + *dir + " --frames " + std::to_string(frames) +
+                            " --seed 7", &out, &err) != 0) {
+    ADD_FAILURE() << out << err;
+    return nullptr;
+  }
+  core::DatasetOptions options;
+  auto dataset = core::open_dataset(*dir, options, &why);
+  EXPECT_TRUE(dataset) << why;
+  return dataset;
+}
+
+// Tracks every frame of `dataset`; the keyframes handed to the mapper (those it did not leave
+// out), or -1 on a failure.
+int track_all(const core::Dataset& dataset, core::SlamPipeline* pipeline) {
+  std::size_t keyframes = 0;
+  std::string why;
+  for (std::size_t i = 0; i < dataset.size(); ++i) {
+    core::RgbdFrame frame;
+    core::TrackingResult result;
+    if (!dataset.load(i, &frame, &why) || !pipeline->process_frame(frame, &result, &why)) {
+      ADD_FAILURE() << why;
+      return -1;
+    }
+    keyframes += result.keyframe ? 1 : 0;
+  }
+  return static_cast<int>(keyframes - pipeline->keyframes_left_out());
+}
+
+// Ends the pipeline's mapping loop before the MappingThread declared after it is joined, however
+// the test ends.
+struct FinishOnExit {
+  core::SlamPipeline* pipeline;
+  ~FinishOnExit() { pipeline->finish(); }
+};
+
 // Its CPU busy at nice 10: the mapping thread starves under SCHED_IDLE, is lifted with the
 // TBB workers of its arena (no thread of the process stays SCHED_IDLE while it is lifted: a
 // worker left there held tasks the lifted thread waited for, and each keyframe was starved
@@ -91,14 +132,9 @@ TEST(MappingThreadUnderLoad, StarvedMappingIsLiftedWithItsWorkersThenGoesBackToI
   // TBB sizes its worker pool from the CPUs it may use (now one: no worker); the arena below
   // asks for two threads, so that one TBB worker works for mapping beside its thread.
   const tbb::global_control two_threads(tbb::global_control::max_allowed_parallelism, 2);
-  const std::string dir = test::fresh_temp_dir("priority").string();
-  std::string out, err;
-  ASSERT_EQ(test::run_command(test::fslam_bin() + " synth --out " + dir + " --frames 40 --seed 7", &out, &err), 0)
-      << out << err;
-  std::string why;
-  core::DatasetOptions options;
-  const auto dataset = core::open_dataset(dir, options, &why);
-  ASSERT_TRUE(dataset) << why;
+  std::string dir;
+  const auto dataset = synthetic_room("priority", 40, &dir);
+  ASSERT_TRUE(dataset);
 
   core::PipelineConfig config;
   config.realtime = true;
@@ -107,20 +143,9 @@ TEST(MappingThreadUnderLoad, StarvedMappingIsLiftedWithItsWorkersThenGoesBackToI
   std::atomic<int> mapped{0};
   CpuHog hog;
   server::MappingThread mapping(&pipeline, 2, true, [&](const core::KeyframeReport&) { ++mapped; }, nullptr);
-  struct Finish {  // before `mapping` is joined, however the test ends
-    core::SlamPipeline* pipeline;
-    ~Finish() { pipeline->finish(); }
-  } finish{&pipeline};
-
-  std::size_t keyframes = 0;
-  for (std::size_t i = 0; i < dataset->size(); ++i) {
-    core::RgbdFrame frame;
-    core::TrackingResult result;
-    ASSERT_TRUE(dataset->load(i, &frame, &why) && pipeline.process_frame(frame, &result, &why)) << why;
-    keyframes += result.keyframe ? 1 : 0;
-  }
-  ASSERT_GE(keyframes, 3u);
-  const int to_map = static_cast<int>(keyframes - pipeline.keyframes_left_out());
+  const FinishOnExit finish{&pipeline};
+  const int to_map = track_all(*dataset, &pipeline);
+  ASSERT_GE(to_map, 3);
 
   // While lifted and no keyframe was mapped in between, no thread of the process is SCHED_IDLE.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(120));
@@ -160,24 +185,16 @@ TEST(MappingThreadUnderLoad, AFinishingSessionsMappingLeavesIdleAndStaysThereUnt
   if (!server::MappingThread::can_leave_idle()) {
     GTEST_SKIP() << "this process may not leave SCHED_IDLE (no CAP_SYS_NICE, RLIMIT_NICE below 20)";
   }
-  const std::string dir = test::fresh_temp_dir("finishing").string();
-  std::string out, err;
-  ASSERT_EQ(test::run_command(test::fslam_bin() + " synth --out " + dir + " --frames 30 --seed 7", &out, &err), 0)
-      << out << err;
-  std::string why;
-  core::DatasetOptions options;
-  const auto dataset = core::open_dataset(dir, options, &why);
-  ASSERT_TRUE(dataset) << why;
+  std::string dir;
+  const auto dataset = synthetic_room("finishing", 30, &dir);
+  ASSERT_TRUE(dataset);
 
   core::PipelineConfig config;
   config.realtime = true;
   core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
   std::atomic<int> mapped{0};
   server::MappingThread mapping(&pipeline, 1, true, [&](const core::KeyframeReport&) { ++mapped; }, nullptr);
-  struct Finish {  // before `mapping` is joined, however the test ends
-    core::SlamPipeline* pipeline;
-    ~Finish() { pipeline->finish(); }
-  } finish{&pipeline};
+  const FinishOnExit finish{&pipeline};
   // While the session streams, mapping is background work: its thread runs under SCHED_IDLE.
   const auto started = std::chrono::steady_clock::now() + std::chrono::seconds(test::scaled_s(10));
   while (idle_threads() == 0 && std::chrono::steady_clock::now() < started)
@@ -185,15 +202,8 @@ TEST(MappingThreadUnderLoad, AFinishingSessionsMappingLeavesIdleAndStaysThereUnt
   EXPECT_GE(idle_threads(), 1) << "the mapping thread did not start under SCHED_IDLE";
   EXPECT_EQ(mapping.priority_step(), 0);
 
-  std::size_t keyframes = 0;
-  for (std::size_t i = 0; i < dataset->size(); ++i) {
-    core::RgbdFrame frame;
-    core::TrackingResult result;
-    ASSERT_TRUE(dataset->load(i, &frame, &why) && pipeline.process_frame(frame, &result, &why)) << why;
-    keyframes += result.keyframe ? 1 : 0;
-  }
-  ASSERT_GE(keyframes, 2u);
-  const int to_map = static_cast<int>(keyframes - pipeline.keyframes_left_out());
+  const int to_map = track_all(*dataset, &pipeline);
+  ASSERT_GE(to_map, 1);
 
   mapping.finish_fairly();
   EXPECT_EQ(mapping.priority_step(), 2);
