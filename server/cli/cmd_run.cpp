@@ -335,6 +335,7 @@ int run_slam(const RunArgs& args) {
     mapping_progress.start(t.keyframes());
   };
   callbacks.wait_for_mapping = [&](std::string* mwhy) {
+    mapping.finish_fairly();  // the run waits for it now: no longer background work
     mapping.join();
     if (mapping_progress.progress) mapping_progress.progress->finish();
     return mapping_progress.error.empty() || core::fail(mwhy, mapping_progress.error);

@@ -24,10 +24,11 @@ namespace fslam::server {
 // step, to kStarvedMappingNice; still starved there for another window (several sessions with
 // features on fill every core at nice 0), one more, to nice 0, where it gets a fair share. Each
 // step lifts the TBB workers working for it too. It goes back to SCHED_IDLE once no keyframe
-// waits after one is mapped. When the session closes (finish_fairly()), what mapping has left is
-// what its client waits for: nice 0 until the end. Leaving SCHED_IDLE needs CAP_SYS_NICE or an RLIMIT_NICE of 20;
-// without them (a container without --cap-add SYS_NICE) mapping runs at kStarvedMappingNice
-// throughout, and TBB workers that worked for it stay there (docs/mapping.md).
+// waits after one is mapped. Once the frames are all tracked (finish_fairly(): a session's close,
+// the end of `fslam run`'s tracking), what mapping has left is what the user waits for: nice 0
+// until the end. Leaving SCHED_IDLE needs CAP_SYS_NICE or an RLIMIT_NICE of 20; without them (a
+// container without --cap-add SYS_NICE) mapping runs at kStarvedMappingNice throughout, and TBB
+// workers that worked for it stay there (docs/mapping.md).
 constexpr double kMappingStarvationSeconds = 2.0;
 constexpr double kStarvedCpuShare = 0.05;
 constexpr int kStarvedMappingNice = 10;
@@ -45,8 +46,8 @@ class MappingThread {
   MappingThread(const MappingThread&) = delete;
   MappingThread& operator=(const MappingThread&) = delete;
 
-  // The session's frames are all tracked and its close waits for what mapping has left: from now
-  // on mapping and its workers run at nice 0 (a fair share beside other sessions' tracking, not
+  // The frames are all tracked and a close (or the end of a run) waits for what mapping has left:
+  // from now on mapping and its workers run at nice 0 (a fair share beside other sessions' tracking, not
   // what they leave over), where this process may leave SCHED_IDLE; no-op otherwise.
   void finish_fairly();
 
