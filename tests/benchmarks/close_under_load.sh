@@ -20,36 +20,29 @@ while [[ $# -gt 0 ]]; do
   shift
 done
 [[ -x "$BIN/fslam-server" && -x "$BIN/fslam" ]] || { echo "no fslam-server / fslam in $BIN (build first)" >&2; exit 2; }
-export CYCLONEDDS_URI="file://$ROOT/configs/dds/loopback.xml"
+export CYCLONEDDS_URI="file://$ROOT/configs/dds/loopback.xml"  # no DDS traffic off this machine
+source "$ROOT/tests/common/script_support.sh"
 WORK="$(mktemp -d)"
-SERVER="" HOG_PIDS=() A=""
-cleanup() {
-  for pid in "${HOG_PIDS[@]}" $A $SERVER; do kill "$pid" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$WORK"
-}
+cleanup() { stop_started || true; rm -rf "$WORK"; }  # || true: its kills and waits may fail under set -e
 trap cleanup EXIT
 "$BIN/fslam" synth --out "$WORK/seq" --frames 160 --seed 9 >/dev/null 2>&1
 
 for run in $(seq 1 "$RUNS"); do
-  prefix="close$$r$run"
+  PREFIX="close$$r$run"
   rm -rf "$WORK/maps"
-  "$BIN/fslam-server" --prefix "$prefix" --map-dir "$WORK/maps" >"$WORK/server.log" 2>&1 &
-  SERVER=$!
-  sleep 2
-  HOG_PIDS=()
-  for _ in $(seq 1 "$HOGS"); do yes >/dev/null & HOG_PIDS+=($!); done
+  start_server "$WORK/server.log" || { echo "the server did not start:"; tail "$WORK/server.log"; exit 1; }
+  for _ in $(seq 1 "$HOGS"); do yes >/dev/null & PIDS+=($!); done
   if [[ $BESIDE == 1 ]]; then
-    "$BIN/fslam" stream --policy live --rate 15 --timeout 120 --dataset "$WORK/seq" --prefix "$prefix" \
+    "$BIN/fslam" stream --policy live --rate 15 --timeout 120 --dataset "$WORK/seq" --prefix "$PREFIX" \
       --session a --map ma --report "$WORK/a.json" >"$WORK/a.log" 2>&1 &
     A=$!
     sleep 2
   fi
-  "$BIN/fslam" stream --policy queue --timeout 120 --dataset "$WORK/seq" --prefix "$prefix" --session b \
+  "$BIN/fslam" stream --policy queue --timeout 120 --dataset "$WORK/seq" --prefix "$PREFIX" --session b \
     --map mb --frames 0:100:2 --refine 20 --report "$WORK/b.json" >"$WORK/b.log" 2>&1 || true
-  if [[ -n $A ]]; then wait "$A" || true; A=""; fi
-  for pid in "${HOG_PIDS[@]}"; do kill "$pid"; done
-  HOG_PIDS=()
+  [[ $BESIDE == 1 ]] && { wait "$A" || true; }
+  stop_started || true  # the hogs and the server (which saves on the way out)
+  PIDS=()
   python3 - "$WORK" "$run" "$BESIDE" <<'EOF'
 import json, sys
 work, run, beside = sys.argv[1], sys.argv[2], sys.argv[3] == "1"
@@ -63,7 +56,4 @@ if beside:
         l["server_track"]["p50_ms"], l["server_track"]["p99_ms"])
 print(line, flush=True)
 EOF
-  kill -TERM "$SERVER"
-  wait "$SERVER" || true
-  SERVER=""
 done
