@@ -343,6 +343,7 @@ void add_mapper_fields(SettingsTable<core::PipelineConfig>* f) {
   const auto lr = section(f, "mapper.learning_rates",
                           [](auto& c) -> auto& { return c.mapper.learning_rates; });
   lr.add("means", &Rates::means);
+  lr.add("means_decay_steps", &Rates::means_decay_steps);
   lr.add("sh_dc", &Rates::sh_dc);
   lr.add("sh_rest", &Rates::sh_rest);
   lr.add("opacity", &Rates::opacity);

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 namespace fslam::core {
@@ -16,6 +17,7 @@ int AdamOptimizer::add_group(std::string name, std::size_t row, float lr) {
   group.lr = lr;
   group.m.assign(n_ * row, 0.0f);
   group.v.assign(n_ * row, 0.0f);
+  group.row_steps.assign(n_, 0);
   groups_.push_back(std::move(group));
   return static_cast<int>(groups_.size()) - 1;
 }
@@ -43,32 +45,42 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
   // under its default EIGEN_FAST_MATH) is within a couple of ulp of IEEE and flushes v below
   // FLT_MIN to 0; both are far below what changes an optimiser step, but vectorised elements and
   // the scalar tail can differ in the last bit.
-  auto update = [&](auto p, auto grad, auto m, auto v) {
+  auto update = [&](float size, auto p, auto grad, auto m, auto v) {
     m = b1 * m + one_minus_b1 * grad;
     v = b2 * v + one_minus_b2 * grad.square();
-    p -= step_size * (m / (v.sqrt() / bc2_sqrt + eps));
+    p -= size * (m / (v.sqrt() / bc2_sqrt + eps));
   };
   const Eigen::Index rows = static_cast<Eigen::Index>(group.row);
   const Eigen::Index n = static_cast<Eigen::Index>(n_);
-  if (active != nullptr) {
-    // Sparse update (as 3DGS's visibility-masked Adam): rows that are not active keep their
-    // parameters and moments, so momentum from earlier views does not move what this view
-    // cannot see.
+  using Row = Eigen::Map<Eigen::ArrayXf>;
+  if (active != nullptr || group.decay_steps > 0) {
+    // Row by row. Sparse (as 3DGS's visibility-masked Adam): rows that are not active keep their
+    // parameters and moments, so momentum from earlier views does not move what this view cannot
+    // see. Decaying: a Gaussian's rate is lr * 0.01^(min(k, N) / N) at its k-th step.
+    const int N = group.decay_steps;
+    std::vector<float> decay(static_cast<std::size_t>(N) + 1, 1.0f);
+    for (int k = 0; k <= N && N > 0; ++k)
+      decay[static_cast<std::size_t>(k)] = std::pow(0.01f, static_cast<float>(k) / static_cast<float>(N));
     for (std::size_t i = 0; i < n_; ++i) {
-      if (!active[i]) continue;
-      using Row = Eigen::Map<Eigen::ArrayXf>;
-      update(Row(params + i * stride, rows), Eigen::Map<const Eigen::ArrayXf>(grads + i * stride, rows),
+      if (active != nullptr && !active[i]) continue;
+      float size = step_size;
+      if (N > 0) {
+        std::int32_t& k = group.row_steps[i];
+        size *= decay[static_cast<std::size_t>(std::min(k, N))];
+        if (k < N) ++k;
+      }
+      update(size, Row(params + i * stride, rows), Eigen::Map<const Eigen::ArrayXf>(grads + i * stride, rows),
              Row(group.m.data() + i * group.row, rows), Row(group.v.data() + i * group.row, rows));
     }
   } else if (stride == group.row) {
     using Flat = Eigen::Map<Eigen::ArrayXf>;
-    update(Flat(params, rows * n), Eigen::Map<const Eigen::ArrayXf>(grads, rows * n),
+    update(step_size, Flat(params, rows * n), Eigen::Map<const Eigen::ArrayXf>(grads, rows * n),
            Flat(group.m.data(), rows * n), Flat(group.v.data(), rows * n));
   } else {
     using Block = Eigen::Map<Eigen::ArrayXXf, 0, Eigen::OuterStride<>>;
     using ConstBlock = Eigen::Map<const Eigen::ArrayXXf, 0, Eigen::OuterStride<>>;
     const Eigen::OuterStride<> outer(static_cast<Eigen::Index>(stride));
-    update(Block(params, rows, n, outer), ConstBlock(grads, rows, n, outer),
+    update(step_size, Block(params, rows, n, outer), ConstBlock(grads, rows, n, outer),
            Eigen::Map<Eigen::ArrayXXf>(group.m.data(), rows, n),
            Eigen::Map<Eigen::ArrayXXf>(group.v.data(), rows, n));
   }
@@ -85,6 +97,17 @@ void AdamOptimizer::set_learning_rate(int g, float lr) {
   groups_[static_cast<std::size_t>(g)].lr = lr;
 }
 
+void AdamOptimizer::set_row_decay(int g, int steps) {
+  AdamGroup& group = groups_[static_cast<std::size_t>(g)];
+  group.decay_steps = std::max(steps, 0);
+  group.row_steps.resize(n_, 0);
+}
+
+void AdamOptimizer::settle_rows(int g) {
+  AdamGroup& group = groups_[static_cast<std::size_t>(g)];
+  std::fill(group.row_steps.begin(), group.row_steps.end(), std::numeric_limits<std::int32_t>::max());
+}
+
 void AdamOptimizer::reset_moments(int g) {
   AdamGroup& group = groups_[static_cast<std::size_t>(g)];
   std::fill(group.m.begin(), group.m.end(), 0.0f);
@@ -96,6 +119,7 @@ void AdamOptimizer::grow(std::size_t count) {
   for (AdamGroup& group : groups_) {
     group.m.resize(n_ * group.row, 0.0f);
     group.v.resize(n_ * group.row, 0.0f);
+    group.row_steps.resize(n_, 0);
   }
 }
 
@@ -106,6 +130,7 @@ void AdamOptimizer::keep_only(const std::vector<std::uint8_t>& keep) {
   for (AdamGroup& group : groups_) {
     keep_rows(&group.m, group.row, keep);
     keep_rows(&group.v, group.row, keep);
+    keep_rows(&group.row_steps, 1, keep);
   }
   n_ = kept;
 }
@@ -122,6 +147,7 @@ AdamOptimizer make_gaussian_adam(const GaussianMap& map, const GaussianLearningR
   adam.add_group("sh_dc", 3, rates.sh_dc);
   adam.add_group("sh_rest", rest, rates.sh_rest);
   adam.add_group("features", static_cast<std::size_t>(map.feature_dim), rates.features);
+  adam.set_row_decay(kAdamMeans, rates.means_decay_steps);
   assert(adam.group_count() == kAdamGroupCount);
   return adam;
 }

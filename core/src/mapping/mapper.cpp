@@ -59,6 +59,8 @@ bool MapperConfig::is_valid(std::string* why) const {
     return fail(why, "mapper: pruning percentiles must be in [0, 1)");
   }
   if (!(min_depth > 0.0f && max_depth > min_depth)) return fail(why, "mapper: bad depth range");
+  if (learning_rates.means_decay_steps < 0)
+    return fail(why, "mapper: learning_rates.means_decay_steps must be >= 0 (0: a constant rate)");
   return validate(loss.pcc, why);
 }
 
@@ -677,9 +679,15 @@ bool Mapper::refine(int steps, std::string* why, const std::function<void(int, i
   if (keyframes_.empty() || map_.empty()) return true;
   recompute_filter_3d(0);
   const GaussianLearningRates& lr = config_.learning_rates;
+  // Refinement has its own schedule over all Gaussians (below), not the per-Gaussian decay.
+  adam_.set_row_decay(kAdamMeans, 0);
+  const auto online_rates = [&] {
+    adam_.set_learning_rate(kAdamMeans, lr.means);
+    adam_.set_row_decay(kAdamMeans, lr.means_decay_steps);
+  };
   for (int it = 0; it < steps; ++it) {
     if (stop != nullptr && stop->load()) {
-      adam_.set_learning_rate(kAdamMeans, lr.means);
+      online_rates();
       publish();
       return fail(why, "refinement stopped after " + std::to_string(it) + " of " + std::to_string(steps) + " steps");
     }
@@ -687,15 +695,17 @@ bool Mapper::refine(int steps, std::string* why, const std::function<void(int, i
     const float t = steps > 1 ? static_cast<float>(it) / static_cast<float>(steps - 1) : 0.0f;
     adam_.set_learning_rate(kAdamMeans, lr.means * std::pow(0.01f, t));
     const StoredKeyframe& kf = keyframes_[sample_keyframe(true)];
-    if (config_.refine_scale <= config_.training_scale) {
-      if (!step(kf, nullptr, why)) return false;
-    } else {
-      StoredKeyframe view;
-      if (!refine_view(kf, &view, why) || !step(view, nullptr, why)) return false;
+    StoredKeyframe view;
+    const bool stepped = config_.refine_scale <= config_.training_scale
+                             ? step(kf, nullptr, why)
+                             : refine_view(kf, &view, why) && step(view, nullptr, why);
+    if (!stepped) {
+      online_rates();
+      return false;
     }
     if (progress && ((it + 1) % 10 == 0 || it + 1 == steps)) progress(it + 1, steps);
   }
-  adam_.set_learning_rate(kAdamMeans, lr.means);  // the online rate again after refinement
+  online_rates();
   publish();
   return true;
 }
@@ -713,6 +723,7 @@ bool Mapper::set_map(const GaussianMap& map, std::string* why) {
   anchor_.assign(map_.size(), -1);
   if (map_.filter_3d.size() != map_.size()) map_.filter_3d.assign(map_.size(), 0.0f);
   adam_ = make_gaussian_adam(map_, config_.learning_rates);
+  adam_.settle_rows(kAdamMeans);  // a map given whole was optimised already: its means have settled
   reset_round();
   new_in_round_.assign(map_.size(), 0);
   publish();

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -256,6 +257,48 @@ TEST(Adam, SparseStepLeavesInactiveRowsUntouched) {
   EXPECT_EQ(adam.group(g).m[2], 0.0f);
   EXPECT_EQ(adam.group(g).v[3], 0.0f);
   EXPECT_GT(adam.group(g).m[0], 0.0f);
+}
+
+TEST(Adam, RowDecayCountsEachGaussiansOwnSteps) {
+  // A constant gradient makes Adam's bias-corrected step exactly its rate, so each step's size
+  // shows the schedule: lr * 0.01^(k / N) at a row's k-th step, 0.01 lr from its N-th on.
+  const float lr = 0.1f;
+  const int N = 4;
+  AdamOptimizer adam(2);
+  const int g = adam.add_group("p", 1, lr);
+  adam.set_row_decay(g, N);
+  std::vector<float> params = {0, 0};
+  const std::vector<std::uint8_t> only_first = {1, 0};
+  for (int k = 0; k < 6; ++k) {
+    std::vector<float> grads(params.size(), 1.0f);
+    const std::vector<float> before = params;
+    adam.step(g, &params, grads, only_first.data());
+    const float expected = lr * std::pow(0.01f, static_cast<float>(std::min(k, N)) / N);
+    EXPECT_NEAR(before[0] - params[0], expected, 1e-6f) << "step " << k;
+    EXPECT_EQ(params[1], 0.0f);  // inactive: neither moved nor counted
+  }
+  // A Gaussian added now, or one that was inactive, starts at the full rate.
+  adam.grow(1);
+  params.push_back(0.0f);
+  std::vector<float> grads(params.size(), 1.0f);
+  std::vector<float> before = params;
+  adam.step(g, &params, grads);
+  EXPECT_NEAR(before[0] - params[0], lr * 0.01f, 1e-6f);
+  EXPECT_GT(before[1] - params[1], 0.3f * lr);  // its first step (moments start at zero)
+  EXPECT_GT(before[2] - params[2], 0.3f * lr);
+  // Settled rows take the final rate; decay 0 takes lr for every row again.
+  adam.settle_rows(g);
+  before = params;
+  adam.step(g, &params, grads);
+  EXPECT_LT(before[2] - params[2], 0.05f * lr);
+  adam.set_row_decay(g, 0);
+  before = params;
+  adam.step(g, &params, grads);
+  EXPECT_NEAR(before[0] - params[0], lr, 1e-6f);
+  // Pruning keeps each row's count with it.
+  adam.set_row_decay(g, N);
+  adam.keep_only({0, 1, 1});
+  EXPECT_EQ(adam.group(g).row_steps.size(), 2u);
 }
 
 }  // namespace

@@ -29,6 +29,10 @@ struct AdamGroup {
   std::int64_t steps = 0;
   std::vector<float> m;  // [N, row] first moment
   std::vector<float> v;  // [N, row] second raw moment
+  // Per-Gaussian decay (set_row_decay): each Gaussian's rate is lr * 0.01^(min(k, decay_steps) /
+  // decay_steps) at its k-th step (counted in row_steps, [N]); 0 = no decay, the rate is lr.
+  int decay_steps = 0;
+  std::vector<std::int32_t> row_steps;
 };
 
 // Adam state for N Gaussians and any number of groups, kept aligned with the map's rows.
@@ -51,6 +55,12 @@ class AdamOptimizer {
             const std::uint8_t* active = nullptr);
 
   void set_learning_rate(int g, float lr);
+  // Each Gaussian's rate in group `g` decays log-linearly to 1/100 over its own first `steps`
+  // steps (3DGS's schedule over iterations, counted per Gaussian: in an online map Gaussians
+  // start at different times); 0 turns the decay off (counts are kept, not advanced).
+  void set_row_decay(int g, int steps);
+  // Marks every current Gaussian of group `g` as past its decay (a loaded map's Gaussians).
+  void settle_rows(int g);
   // Zeros the moments of group `g`, keeping its step count (3DGS does this on opacity reset).
   void reset_moments(int g);
 
@@ -76,7 +86,8 @@ class AdamOptimizer {
 struct GaussianLearningRates {
   // Metres per step. 3DGS multiplies 1.6e-4 by the scene extent and decays it to 1/100 over
   // 30k iterations; an online map gets tens of steps per view rather than thousands, so we take
-  // twice 3DGS's rate in metres, without decay (refinement decays it, Mapper::refine).
+  // twice 3DGS's rate in metres, decayed per Gaussian (means_decay_steps below; refinement
+  // decays it over all Gaussians instead, Mapper::refine).
   // Schedules go through set_learning_rate. The online values below (means, SH DC, log-scales)
   // were chosen on redkitchen 0-299 and checked on 300-599 (docs/mapping.md).
   float means = 3.2e-4f;
@@ -86,6 +97,11 @@ struct GaussianLearningRates {
   // lowered it to 0.025. We keep 0.05.
   float opacity = 0.05f;
   float log_scales = 1e-2f;  // log metres per step (2x 3DGS's, as above)
+  // 3DGS decays the means' rate to 1/100 over its iterations; online, each Gaussian's rate
+  // decays so over its own first N steps (AdamOptimizer::set_row_decay), so a Gaussian settles
+  // where its first views put it instead of wandering for colour with every later view. 0: a
+  // constant rate. 30 was chosen on redkitchen 0-299 (docs/mapping.md).
+  int means_decay_steps = 30;
   float rotations = 1e-3f;   // quaternion components (unnormalised) per step
   float features = 2.5e-3f;  // latent units per step; our choice (3DGS's SH DC rate), not from 3DGS
 };
