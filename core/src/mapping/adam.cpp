@@ -59,7 +59,7 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
     // see. Decaying: a Gaussian's rate is lr * 0.01^(min(k, N) / N) at its k-th step.
     const int N = group.decay_steps;
     std::vector<float> decay(static_cast<std::size_t>(N) + 1, 1.0f);
-    for (int k = 0; k <= N && N > 0; ++k)
+    for (int k = 1; k <= N; ++k)
       decay[static_cast<std::size_t>(k)] = std::pow(0.01f, static_cast<float>(k) / static_cast<float>(N));
     for (std::size_t i = 0; i < n_; ++i) {
       if (active != nullptr && !active[i]) continue;
@@ -100,7 +100,6 @@ void AdamOptimizer::set_learning_rate(int g, float lr) {
 void AdamOptimizer::set_row_decay(int g, int steps) {
   AdamGroup& group = groups_[static_cast<std::size_t>(g)];
   group.decay_steps = std::max(steps, 0);
-  group.row_steps.resize(n_, 0);
 }
 
 void AdamOptimizer::settle_rows(int g) {
