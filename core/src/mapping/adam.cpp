@@ -58,15 +58,12 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
     // parameters and moments, so momentum from earlier views does not move what this view cannot
     // see. Decaying: a Gaussian's rate is lr * 0.01^(min(k, N) / N) at its k-th step.
     const int N = group.decay_steps;
-    std::vector<float> decay(static_cast<std::size_t>(N) + 1, 1.0f);
-    for (int k = 1; k <= N; ++k)
-      decay[static_cast<std::size_t>(k)] = std::pow(0.01f, static_cast<float>(k) / static_cast<float>(N));
     for (std::size_t i = 0; i < n_; ++i) {
       if (active != nullptr && !active[i]) continue;
       float size = step_size;
       if (N > 0) {
         std::int32_t& k = group.row_steps[i];
-        size *= decay[static_cast<std::size_t>(std::min(k, N))];
+        size *= group.decay[static_cast<std::size_t>(std::min(k, N))];
         if (k < N) ++k;
       }
       update(size, Row(params + i * stride, rows), Eigen::Map<const Eigen::ArrayXf>(grads + i * stride, rows),
@@ -100,6 +97,10 @@ void AdamOptimizer::set_learning_rate(int g, float lr) {
 void AdamOptimizer::set_row_decay(int g, int steps) {
   AdamGroup& group = groups_[static_cast<std::size_t>(g)];
   group.decay_steps = std::max(steps, 0);
+  group.decay.assign(static_cast<std::size_t>(group.decay_steps) + 1, 1.0f);
+  for (int k = 1; k <= group.decay_steps; ++k)
+    group.decay[static_cast<std::size_t>(k)] =
+        std::pow(0.01f, static_cast<float>(k) / static_cast<float>(group.decay_steps));
 }
 
 void AdamOptimizer::settle_rows(int g) {

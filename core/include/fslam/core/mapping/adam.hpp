@@ -29,9 +29,11 @@ struct AdamGroup {
   std::int64_t steps = 0;
   std::vector<float> m;  // [N, row] first moment
   std::vector<float> v;  // [N, row] second raw moment
-  // Per-Gaussian decay (set_row_decay): each Gaussian's rate is lr * 0.01^(min(k, decay_steps) /
-  // decay_steps) at its k-th step (counted in row_steps, [N]); 0 = no decay, the rate is lr.
+  // Per-Gaussian decay (set_row_decay): each Gaussian's rate is lr * decay[min(k, decay_steps)]
+  // at its k-th step (counted in row_steps, [N]), decay[k] = 0.01^(k / decay_steps), computed
+  // once; 0 = no decay, the rate is lr.
   int decay_steps = 0;
+  std::vector<float> decay;  // [decay_steps + 1]
   std::vector<std::int32_t> row_steps;
 };
 
