@@ -53,11 +53,11 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
   const Eigen::Index rows = static_cast<Eigen::Index>(group.row);
   const Eigen::Index n = static_cast<Eigen::Index>(n_);
   using Row = Eigen::Map<Eigen::ArrayXf>;
-  if (active != nullptr || group.decay_steps > 0) {
+  if (active != nullptr || !group.decay.empty()) {
     // Row by row. Sparse (as 3DGS's visibility-masked Adam): rows that are not active keep their
     // parameters and moments, so momentum from earlier views does not move what this view cannot
     // see. Decaying: a Gaussian's rate is lr * 0.01^(min(k, N) / N) at its k-th step.
-    const int N = group.decay_steps;
+    const int N = group.decay.empty() ? 0 : static_cast<int>(group.decay.size()) - 1;
     for (std::size_t i = 0; i < n_; ++i) {
       if (active != nullptr && !active[i]) continue;
       float size = step_size;
@@ -96,11 +96,11 @@ void AdamOptimizer::set_learning_rate(int g, float lr) {
 
 void AdamOptimizer::set_row_decay(int g, int steps) {
   AdamGroup& group = groups_[static_cast<std::size_t>(g)];
-  group.decay_steps = std::max(steps, 0);
-  group.decay.assign(static_cast<std::size_t>(group.decay_steps) + 1, 1.0f);
-  for (int k = 1; k <= group.decay_steps; ++k)
-    group.decay[static_cast<std::size_t>(k)] =
-        std::pow(0.01f, static_cast<float>(k) / static_cast<float>(group.decay_steps));
+  group.decay.clear();
+  if (steps <= 0) return;
+  group.decay.resize(static_cast<std::size_t>(steps) + 1);
+  for (int k = 0; k <= steps; ++k)
+    group.decay[static_cast<std::size_t>(k)] = std::pow(0.01f, static_cast<float>(k) / static_cast<float>(steps));
 }
 
 void AdamOptimizer::settle_rows(int g) {

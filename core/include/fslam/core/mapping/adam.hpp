@@ -29,11 +29,10 @@ struct AdamGroup {
   std::int64_t steps = 0;
   std::vector<float> m;  // [N, row] first moment
   std::vector<float> v;  // [N, row] second raw moment
-  // Per-Gaussian decay (set_row_decay): each Gaussian's rate is lr * decay[min(k, decay_steps)]
-  // at its k-th step (counted in row_steps, [N]), decay[k] = 0.01^(k / decay_steps), computed
-  // once; 0 = no decay, the rate is lr.
-  int decay_steps = 0;
-  std::vector<float> decay;  // [decay_steps + 1]
+  // Per-Gaussian decay (set_row_decay over S steps): each Gaussian's rate is lr * decay[min(k, S)]
+  // at its k-th step (counted in row_steps, [N]), decay[k] = 0.01^(k / S), computed once; empty =
+  // no decay, the rate is lr.
+  std::vector<float> decay;  // [S + 1] or empty
   std::vector<std::int32_t> row_steps;
 };
 
