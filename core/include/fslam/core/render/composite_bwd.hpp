@@ -2,9 +2,11 @@
 // splat by splat (outer loop) over its pixels (inner loop, kLanes pixels of a row at once),
 // rolling each pixel's transmittance and prefix sums forward: the state at the start of every
 // block of P splats is the checkpoint T*_{kP} of eq. transmittance_ckpt, and T_i is recovered
-// from it as in eq. transmittance_recover. Gradients go to the worker thread's own buffer (no
-// atomics, no locks). The CUDA sibling is cuda/src/composite_bwd.cu. Internal to core/render and
-// its tests.
+// from it as in eq. transmittance_recover. Each splat's gradient over a tile goes to its own row
+// of the tile list (no atomics, no locks), and project_bwd sums a Gaussian's rows in tile order:
+// the sum's order does not depend on which thread ran which tile, so the gradients are the same
+// bit for bit on every run and at any thread count. The CUDA sibling is cuda/src/composite_bwd.cu.
+// Internal to core/render and its tests.
 #pragma once
 
 #include <algorithm>
@@ -165,9 +167,9 @@ FSLAM_HD_INLINE bool splat_backward_over_tile(const CompositeBwdInputs<T>& in, c
   return touched;
 }
 
-// Adds one splat's lane sums to its row of the thread's buffer `a` ([kGrad2dFixed + D]).
+// Writes one splat's lane sums over a tile to its tile-list row `a` ([kGrad2dFixed + D]).
 template <typename T>
-FSLAM_HD_INLINE void add_splat_gradient(const math::ProjectedGradient<PixelLanes<T>>& pg, const PixelLanes<T>& imp_rgb,
+FSLAM_HD_INLINE void write_splat_gradient(const math::ProjectedGradient<PixelLanes<T>>& pg, const PixelLanes<T>& imp_rgb,
                         const PixelLanes<T>& imp_feat, const std::vector<PixelLanes<T>>& feature_grad, int D,
                         T* a) {
   math::ProjectedGradient<T> sum_pg;
@@ -180,41 +182,44 @@ FSLAM_HD_INLINE void add_splat_gradient(const math::ProjectedGradient<PixelLanes
   for (int k = 0; k < 3; ++k) sum_pg.colour[k] = simd::sum(pg.colour[k]);
   T packed[kGrad2dFixed];
   math::pack_gradient_2d(sum_pg, simd::sum(imp_rgb), simd::sum(imp_feat), packed);
-  for (int k = 0; k < kGrad2dFixed; ++k) a[k] += packed[k];
-  for (int c = 0; c < D; ++c) a[kGrad2dFixed + c] += simd::sum(feature_grad[c]);
+  for (int k = 0; k < kGrad2dFixed; ++k) a[k] = packed[k];
+  for (int c = 0; c < D; ++c) a[kGrad2dFixed + c] = simd::sum(feature_grad[c]);
 }
 
-// Backward of composite_fwd: each Gaussian's 2D gradient summed per worker thread into
-// st.thread_grads ([N, kGrad2dFixed + D] each, zeroed here); project_bwd reduces them.
+// Backward of composite_fwd: each splat's 2D gradient over each of its tiles into
+// st.entry_grads ([tile_ids.size(), kGrad2dFixed + D], one row per tile-list entry, every row
+// written here; zero where the splat adds nothing); project_bwd sums them per Gaussian.
 template <typename T>
 void composite_bwd(const SplatScene<T>& scene, const CompositeBwdInputs<T>& in, const RasterState<T>& st) {
   using L = PixelLanes<T>;
   const int D = in.D;
-  const std::size_t n = scene.count;
-  const int stride = kGrad2dFixed + D;
+  const std::size_t stride = static_cast<std::size_t>(kGrad2dFixed + D);
   const int channels = 4 + D;
   const int grad_channels = 4 + (in.feature_grads ? D : 0);
-  auto& buffers = st.thread_grads;
-  for (std::vector<T>& b : buffers) b.assign(n * stride, T(0));
+  st.entry_grads.resize(st.tile_ids.size() * stride);
   const int tiles = st.tiles_x * st.tiles_y;
   tbb::parallel_for(tbb::blocked_range<int>(0, tiles), [&](const auto& r) {
-    bool existed = false;
-    std::vector<T>& acc = buffers.local(existed);
-    if (!existed) acc.assign(n * stride, T(0));
     BackwardTile<T> tile(channels, grad_channels, D);
     for (int t = r.begin(); t != r.end(); ++t) {
       const std::uint32_t begin = st.tile_offsets[t], end = st.tile_offsets[t + 1];
       if (begin == end) continue;
+      T* rows = st.entry_grads.data() + begin * stride;
       const int max_end = begin_backward_tile(in, st, t, &tile);
       for (int j = 0; j < max_end; ++j) {
+        T* row = rows + static_cast<std::size_t>(j) * stride;
         const std::uint32_t id = st.tile_ids[begin + j];
         const T* f = D > 0 ? scene.features + static_cast<std::size_t>(id) * scene.feature_dim : nullptr;
         math::ProjectedGradient<L> pg{};
         L imp_rgb(T(0)), imp_feat(T(0));
         std::fill(tile.feature_grad.begin(), tile.feature_grad.end(), L(T(0)));
-        if (!splat_backward_over_tile(in, st.projected[id], f, j, &tile, &pg, &imp_rgb, &imp_feat)) continue;
-        add_splat_gradient(pg, imp_rgb, imp_feat, tile.feature_grad, D, acc.data() + static_cast<std::size_t>(id) * stride);
+        if (!splat_backward_over_tile(in, st.projected[id], f, j, &tile, &pg, &imp_rgb, &imp_feat)) {
+          std::fill(row, row + stride, T(0));
+          continue;
+        }
+        write_splat_gradient(pg, imp_rgb, imp_feat, tile.feature_grad, D, row);
       }
+      // Splats behind every pixel's end add nothing.
+      std::fill(rows + static_cast<std::size_t>(max_end) * stride, rows + (end - begin) * stride, T(0));
     }
   });
 }

@@ -1,10 +1,11 @@
-// Projection, backward: the per-thread 2D gradients of composite_bwd reduced once per Gaussian,
-// then chained to its parameters through math::project_gaussian_backward. The CUDA sibling is
+// Projection, backward: the per-tile 2D gradients of composite_bwd summed once per Gaussian, in
+// tile order, then chained to its parameters through math::project_gaussian_backward. The CUDA sibling is
 // cuda/src/project_bwd.cu. Internal to core/render and its tests.
 #pragma once
 
 #include <algorithm>
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include <tbb/blocked_range.h>
@@ -15,15 +16,27 @@
 
 namespace fslam::core::render_impl {
 
-// Adds (+=) to `grads` each visible Gaussian's parameter gradients from the summed 2D gradients
-// in st.thread_grads ([N, kGrad2dFixed + D] each), re-projecting it for the forward's terms.
+// Orders the tile-list entries by Gaussian, keeping tile order within one (a counting sort):
+// Gaussian i's entries are st.entry_order[st.entry_offsets[i] .. st.entry_offsets[i + 1]).
+template <typename T>
+void group_entries_by_gaussian(std::size_t n, const RasterState<T>& st) {
+  std::vector<std::uint32_t>& offsets = st.entry_offsets;
+  offsets.assign(n + 1, 0);
+  for (const std::uint32_t id : st.tile_ids) ++offsets[id + 1];
+  for (std::size_t i = 0; i < n; ++i) offsets[i + 1] += offsets[i];
+  st.entry_order.resize(st.tile_ids.size());
+  std::vector<std::uint32_t> next(offsets.begin(), offsets.end() - 1);
+  for (std::uint32_t e = 0; e < st.tile_ids.size(); ++e) st.entry_order[next[st.tile_ids[e]]++] = e;
+}
+
+// Adds (+=) to `grads` each visible Gaussian's parameter gradients from the sum of its rows of
+// st.entry_grads ([tile_ids.size(), kGrad2dFixed + D]), re-projecting it for the forward's terms.
 template <typename T>
 void project_bwd(const SplatScene<T>& scene, const math::SplatCamera<T>& cam, int D, const RasterState<T>& st,
                  const SceneGrads<T>& grads) {
   const std::size_t n = scene.count;
-  const int stride = kGrad2dFixed + D;
-  std::vector<std::vector<T>*> parts;
-  for (auto& b : st.thread_grads) parts.push_back(&b);
+  const std::size_t stride = static_cast<std::size_t>(kGrad2dFixed + D);
+  group_entries_by_gaussian(n, st);
   const int sh_stride = scene.sh_stride();
   const int K = (scene.sh_degree + 1) * (scene.sh_degree + 1);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const auto& r) {
@@ -31,8 +44,10 @@ void project_bwd(const SplatScene<T>& scene, const math::SplatCamera<T>& cam, in
     for (std::size_t i = r.begin(); i != r.end(); ++i) {
       if (st.projected[i].radius == 0) continue;
       std::fill(sum.begin(), sum.end(), T(0));
-      for (const std::vector<T>* part : parts)
-        for (int k = 0; k < stride; ++k) sum[k] += (*part)[i * stride + k];
+      for (std::uint32_t k = st.entry_offsets[i]; k != st.entry_offsets[i + 1]; ++k) {
+        const T* row = st.entry_grads.data() + st.entry_order[k] * stride;
+        for (std::size_t c = 0; c < stride; ++c) sum[c] += row[c];
+      }
       const math::ProjectedGradient<T> pg = math::unpack_gradient_2d(sum.data());
       math::ProjectedGaussian<T> projected;
       math::ProjectionTerms<T> terms;

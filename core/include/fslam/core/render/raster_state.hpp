@@ -7,8 +7,6 @@
 #include <cstdint>
 #include <vector>
 
-#include <tbb/enumerable_thread_specific.h>
-
 #include "fslam/core/math/lanes.hpp"
 #include "fslam/core/math/splat_math.hpp"
 
@@ -55,10 +53,12 @@ struct RasterState {
   std::uint64_t evaluated_pairs = 0;  // splat-pixel pairs whose alpha was computed
   std::uint64_t blend_steps = 0;      // splat-pixel pairs composited (alpha >= 1/255)
   // Scratch kept with the state so that a reused state (CpuRasterizer pools them) allocates
-  // nothing per call: [N, 4] tile rectangles of project_fwd, and the backward pass's
-  // per-thread [N, kGrad2dFixed + D] gradient buffers (math::pack_gradient_2d, then D features).
+  // nothing per call: [N, 4] tile rectangles of project_fwd; the backward pass's 2D gradient of
+  // each tile-list entry ([tile_ids.size(), kGrad2dFixed + D]: math::pack_gradient_2d, then D
+  // features) and the entries grouped by Gaussian ([N + 1] offsets into [tile_ids.size()]).
   std::vector<int> rect;
-  mutable tbb::enumerable_thread_specific<std::vector<T>> thread_grads;
+  mutable std::vector<T> entry_grads;
+  mutable std::vector<std::uint32_t> entry_offsets, entry_order;
 };
 
 // One tile's pixel window in the image: [x0, x1) x [y0, y1), clipped at the image's edge.
