@@ -25,8 +25,11 @@ void group_entries_by_gaussian(std::size_t n, const RasterState<T>& st) {
   for (const std::uint32_t id : st.tile_ids) ++offsets[id + 1];
   for (std::size_t i = 0; i < n; ++i) offsets[i + 1] += offsets[i];
   st.entry_order.resize(st.tile_ids.size());
-  std::vector<std::uint32_t> next(offsets.begin(), offsets.end() - 1);
-  for (std::uint32_t e = 0; e < st.tile_ids.size(); ++e) st.entry_order[next[st.tile_ids[e]]++] = e;
+  // offsets[i] is Gaussian i's cursor, from its start to its end (i + 1's start); shifted by one
+  // Gaussian afterwards, so that no cursor array is allocated per call.
+  for (std::uint32_t e = 0; e < st.tile_ids.size(); ++e) st.entry_order[offsets[st.tile_ids[e]]++] = e;
+  for (std::size_t i = n; i > 0; --i) offsets[i] = offsets[i - 1];
+  offsets[0] = 0;
 }
 
 // Adds (+=) to `grads` each visible Gaussian's parameter gradients from the sum of its rows of
