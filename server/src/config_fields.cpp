@@ -344,6 +344,7 @@ void add_mapper_fields(SettingsTable<core::PipelineConfig>* f) {
                           [](auto& c) -> auto& { return c.mapper.learning_rates; });
   lr.add("means", &Rates::means);
   lr.add("means_decay_steps", &Rates::means_decay_steps);
+  lr.add("means_decay_floor", &Rates::means_decay_floor);
   lr.add("sh_dc", &Rates::sh_dc);
   lr.add("sh_rest", &Rates::sh_rest);
   lr.add("opacity", &Rates::opacity);

@@ -56,7 +56,7 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
   if (active != nullptr || !group.decay.empty()) {
     // Row by row. Sparse (as 3DGS's visibility-masked Adam): rows that are not active keep their
     // parameters and moments, so momentum from earlier views does not move what this view cannot
-    // see. Decaying: a Gaussian's rate is lr * 0.01^(min(k, N) / N) at its k-th step.
+    // see. Decaying: a Gaussian's rate is lr * floor^(min(k, N) / N) at its k-th step.
     const int N = group.decay.empty() ? 0 : static_cast<int>(group.decay.size()) - 1;
     for (std::size_t i = 0; i < n_; ++i) {
       if (active != nullptr && !active[i]) continue;
@@ -94,13 +94,14 @@ void AdamOptimizer::set_learning_rate(int g, float lr) {
   groups_[static_cast<std::size_t>(g)].lr = lr;
 }
 
-void AdamOptimizer::set_row_decay(int g, int steps) {
+void AdamOptimizer::set_row_decay(int g, int steps, float floor) {
+  assert(floor > 0.0f && floor <= 1.0f);
   AdamGroup& group = groups_[static_cast<std::size_t>(g)];
   group.decay.clear();
   if (steps <= 0) return;
   group.decay.resize(static_cast<std::size_t>(steps) + 1);
   for (int k = 0; k <= steps; ++k)
-    group.decay[static_cast<std::size_t>(k)] = std::pow(0.01f, static_cast<float>(k) / static_cast<float>(steps));
+    group.decay[static_cast<std::size_t>(k)] = std::pow(floor, static_cast<float>(k) / static_cast<float>(steps));
 }
 
 void AdamOptimizer::settle_rows(int g) {
@@ -147,7 +148,7 @@ AdamOptimizer make_gaussian_adam(const GaussianMap& map, const GaussianLearningR
   adam.add_group("sh_dc", 3, rates.sh_dc);
   adam.add_group("sh_rest", rest, rates.sh_rest);
   adam.add_group("features", static_cast<std::size_t>(map.feature_dim), rates.features);
-  adam.set_row_decay(kAdamMeans, rates.means_decay_steps);
+  adam.set_row_decay(kAdamMeans, rates.means_decay_steps, rates.means_decay_floor);
   assert(adam.group_count() == kAdamGroupCount);
   return adam;
 }

@@ -61,6 +61,8 @@ bool MapperConfig::is_valid(std::string* why) const {
   if (!(min_depth > 0.0f && max_depth > min_depth)) return fail(why, "mapper: bad depth range");
   if (learning_rates.means_decay_steps < 0)
     return fail(why, "mapper: learning_rates.means_decay_steps must be >= 0 (0: a constant rate)");
+  if (!(learning_rates.means_decay_floor > 0.0f && learning_rates.means_decay_floor <= 1.0f))
+    return fail(why, "mapper: learning_rates.means_decay_floor must be in (0, 1]");
   return validate(loss.pcc, why);
 }
 
@@ -683,7 +685,7 @@ bool Mapper::refine(int steps, std::string* why, const std::function<void(int, i
   adam_.set_row_decay(kAdamMeans, 0);
   const auto online_rates = [&] {
     adam_.set_learning_rate(kAdamMeans, lr.means);
-    adam_.set_row_decay(kAdamMeans, lr.means_decay_steps);
+    adam_.set_row_decay(kAdamMeans, lr.means_decay_steps, lr.means_decay_floor);
   };
   for (int it = 0; it < steps; ++it) {
     if (stop != nullptr && stop->load()) {

@@ -295,6 +295,12 @@ TEST(Adam, RowDecayCountsEachGaussiansOwnSteps) {
   before = params;
   adam.step(g, &params, grads);
   EXPECT_NEAR(before[0] - params[0], lr, 1e-6f);
+  // Another floor: a settled row steps at floor * lr.
+  adam.set_row_decay(g, N, 0.1f);
+  adam.settle_rows(g);
+  before = params;
+  adam.step(g, &params, grads);
+  EXPECT_NEAR(before[0] - params[0], 0.1f * lr, 1e-6f);
   // Pruning keeps each row's count with it.
   adam.set_row_decay(g, N);
   adam.keep_only({0, 1, 1});

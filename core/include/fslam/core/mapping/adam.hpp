@@ -29,9 +29,9 @@ struct AdamGroup {
   std::int64_t steps = 0;
   std::vector<float> m;  // [N, row] first moment
   std::vector<float> v;  // [N, row] second raw moment
-  // Per-Gaussian decay (set_row_decay over S steps): each Gaussian's rate is lr * decay[min(k, S)]
-  // at its k-th step (counted in row_steps, [N]), decay[k] = 0.01^(k / S), computed once; empty =
-  // no decay, the rate is lr.
+  // Per-Gaussian decay (set_row_decay over S steps to `floor`): each Gaussian's rate is
+  // lr * decay[min(k, S)] at its k-th step (counted in row_steps, [N]), decay[k] = floor^(k / S),
+  // computed once; empty = no decay, the rate is lr.
   std::vector<float> decay;  // [S + 1] or empty
   std::vector<std::int32_t> row_steps;
 };
@@ -56,10 +56,11 @@ class AdamOptimizer {
             const std::uint8_t* active = nullptr);
 
   void set_learning_rate(int g, float lr);
-  // Each Gaussian's rate in group `g` decays log-linearly to 1/100 over its own first `steps`
-  // steps (3DGS's schedule over iterations, counted per Gaussian: in an online map Gaussians
-  // start at different times); 0 turns the decay off (counts are kept, not advanced).
-  void set_row_decay(int g, int steps);
+  // Each Gaussian's rate in group `g` decays log-linearly to `floor` times lr (3DGS: 1/100) over
+  // its own first `steps` steps (3DGS's schedule over iterations, counted per Gaussian: in an
+  // online map Gaussians start at different times); 0 turns the decay off (counts are kept, not
+  // advanced). floor in (0, 1].
+  void set_row_decay(int g, int steps, float floor = 0.01f);
   // Marks every current Gaussian of group `g` as past its decay (a loaded map's Gaussians).
   void settle_rows(int g);
   // Zeros the moments of group `g`, keeping its step count (3DGS does this on opacity reset).
@@ -103,6 +104,8 @@ struct GaussianLearningRates {
   // where its first views put it instead of wandering for colour with every later view. 0: a
   // constant rate. 30 was chosen on redkitchen 0-299 (docs/mapping.md).
   int means_decay_steps = 30;
+  // The fraction of the rate a Gaussian's mean keeps after its decay: 3DGS's 1/100.
+  float means_decay_floor = 0.01f;
   float rotations = 1e-3f;   // quaternion components (unnormalised) per step
   float features = 2.5e-3f;  // latent units per step; our choice (3DGS's SH DC rate), not from 3DGS
 };
