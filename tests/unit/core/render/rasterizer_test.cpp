@@ -331,6 +331,26 @@ struct LinearLoss {
   }
 };
 
+// Weights in [-1, 1] from `seed` for the outputs switched on (drawn in this order).
+LinearLoss random_linear_loss(int W, int H, int D, unsigned seed, bool colour, bool depth, bool median, bool alpha,
+                              bool features) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  auto random = [&](std::size_t n) {
+    std::vector<double> v(n);
+    for (double& x : v) x = u(rng);
+    return v;
+  };
+  const std::size_t plane = static_cast<std::size_t>(W) * H;
+  LinearLoss loss;
+  if (colour) loss.colour = random(3 * plane);
+  if (depth) loss.depth = random(plane);
+  if (median) loss.median = random(plane);
+  if (alpha) loss.alpha = random(plane);
+  if (features) loss.features = random(static_cast<std::size_t>(D) * plane);
+  return loss;
+}
+
 struct GradCase {
   const char* name;
   int sh_degree;
@@ -346,19 +366,8 @@ TEST_P(RasterizerGradient, MatchesCentralDifferences) {
   const int W = 24, H = 20;
   Scene scene = make_scene(7, gc.sh_degree, gc.feature_dim, gc.filter, 11);
   const auto cam = make_camera(W, H, 0.05);
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  auto random = [&](std::size_t n) {
-    std::vector<double> v(n);
-    for (double& x : v) x = u(rng);
-    return v;
-  };
-  LinearLoss loss;
-  if (gc.colour) loss.colour = random(3 * W * H);
-  if (gc.depth) loss.depth = random(W * H);
-  if (gc.median) loss.median = random(W * H);
-  if (gc.alpha) loss.alpha = random(W * H);
-  if (gc.features) loss.features = random(static_cast<std::size_t>(gc.feature_dim) * W * H);
+  const LinearLoss loss =
+      random_linear_loss(W, H, gc.feature_dim, 3, gc.colour, gc.depth, gc.median, gc.alpha, gc.features);
 
   auto evaluate = [&](const Scene& s) {
     Images im(W, H, s.feature_dim);
@@ -426,19 +435,7 @@ TEST(Rasterizer, BackwardIsTheSameAtAnyThreadCount) {
   const int W = 160, H = 120;
   const Scene scene = make_scene(200, 1, 5, true, 21);
   const auto cam = make_camera(W, H, 0.03);
-  std::mt19937 rng(4);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  auto random = [&](std::size_t n) {
-    std::vector<double> v(n);
-    for (double& x : v) x = u(rng);
-    return v;
-  };
-  LinearLoss loss;
-  loss.colour = random(3 * W * H);
-  loss.depth = random(W * H);
-  loss.median = random(W * H);
-  loss.alpha = random(W * H);
-  loss.features = random(5 * W * H);
+  const LinearLoss loss = random_linear_loss(W, H, 5, 4, true, true, true, true, true);
   auto gradients = [&](int threads) {
     Scene grad = scene;
     for (auto& [name, values] : grad.params()) std::fill(values->begin(), values->end(), 0.0);
