@@ -34,6 +34,17 @@ struct Scene {
   SplatScene<double> view() const {
     return math::splat_scene_of<double>(*this, size(), sh_degree, feature_dim, !filter_3d.empty());
   }
+  // This scene's arrays as the gradients a backward pass adds into (importance not asked for).
+  SceneGrads<double> as_grads() {
+    SceneGrads<double> g;
+    g.means = means.data();
+    g.rotations = rotations.data();
+    g.log_scales = log_scales.data();
+    g.opacity_logits = opacity_logits.data();
+    g.sh = sh.data();
+    g.features = features.empty() ? nullptr : features.data();
+    return g;
+  }
   std::vector<std::pair<std::string, std::vector<double>*>> params() {
     return {{"means", &means},          {"rotations", &rotations}, {"log_scales", &log_scales},
             {"opacity_logits", &opacity_logits}, {"sh", &sh},      {"features", &features}};
@@ -381,15 +392,8 @@ TEST_P(RasterizerGradient, MatchesCentralDifferences) {
   ASSERT_GE(st.visible, 6u);
   Scene grad = scene;
   for (auto& [name, values] : grad.params()) std::fill(values->begin(), values->end(), 0.0);
-  SceneGrads<double> g;
-  g.means = grad.means.data();
-  g.rotations = grad.rotations.data();
-  g.log_scales = grad.log_scales.data();
-  g.opacity_logits = grad.opacity_logits.data();
-  g.sh = grad.sh.data();
-  g.features = grad.features.empty() ? nullptr : grad.features.data();
   render_impl::rasterize_backward(scene.view(), cam, kBackground, true, st, im.outputs(),
-                                  loss.grads(), g);
+                                  loss.grads(), grad.as_grads());
 
   auto params = scene.params();
   auto analytic = grad.params();
@@ -445,13 +449,7 @@ TEST(Rasterizer, BackwardIsTheSameAtAnyThreadCount) {
       Images im(W, H, scene.feature_dim);
       RasterState<double> st;
       render_impl::rasterize_forward(scene.view(), cam, kBackground, true, &st, im.outputs());
-      SceneGrads<double> g;
-      g.means = grad.means.data();
-      g.rotations = grad.rotations.data();
-      g.log_scales = grad.log_scales.data();
-      g.opacity_logits = grad.opacity_logits.data();
-      g.sh = grad.sh.data();
-      g.features = grad.features.data();
+      SceneGrads<double> g = grad.as_grads();
       g.importance_rgb = importance.data();
       g.importance_feature = importance.data() + scene.size();
       render_impl::rasterize_backward(scene.view(), cam, kBackground, true, st, im.outputs(), loss.grads(), g);
