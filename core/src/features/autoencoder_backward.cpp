@@ -4,6 +4,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cassert>
+#include <cmath>
 
 #include "autoencoder_math.hpp"
 #include "fslam/core/error.hpp"
@@ -41,7 +42,7 @@ void FeatureAutoencoder::backward_decode(const AutoencoderTape& t, const float* 
     const Linear& l1 = head1_[l];
     if (trainable(l1.w)) {
       out(G(l1.w), Cl, Hd).noalias() += dy.transpose() * H;
-      out(G(l1.b), 1, Cl) += dy.colwise().sum();
+      add_column_sums(dy.data(), n, Cl, C, G(l1.b));
     }
     if (trainable(l1.lora_b)) {
       z.noalias() = H * in(T(l1.lora_a), r, Hd).transpose();
@@ -55,7 +56,7 @@ void FeatureAutoencoder::backward_decode(const AutoencoderTape& t, const float* 
     const Linear& l0 = head0_[l];
     if (trainable(l0.w)) {
       out(G(l0.w), Hd, D).noalias() += dh.transpose() * F;
-      out(G(l0.b), 1, Hd) += dh.colwise().sum();
+      add_column_sums(dh.data(), n, Hd, Hd, G(l0.b));
     }
     if (trainable(l0.lora_b)) {
       z.noalias() = F * in(T(l0.lora_a), r, D).transpose();
@@ -82,13 +83,13 @@ void FeatureAutoencoder::backward_encode(const AutoencoderTape& t, const float* 
   const auto df = in(grad_f, n, D);
   if (train) {
     out(G(enc1_.w), D, He).noalias() += df.transpose() * in(t.enc_act.data(), n, He);
-    out(G(enc1_.b), 1, D) += df.colwise().sum();
+    add_column_sums(grad_f, n, D, D, G(enc1_.b));
   }
   RowMat dh = df * in(T(enc1_.w), D, He);
   activate_backward(config_.activation, t.enc_pre, dh.data());
   if (train) {
     out(G(enc0_.w), He, C).noalias() += dh.transpose() * in(t.x.data(), n, C);
-    out(G(enc0_.b), 1, He) += dh.colwise().sum();
+    add_column_sums(dh.data(), n, He, He, G(enc0_.b));
   }
   if (grad_u) {
     // dL/du = dL/dx / std.
@@ -157,8 +158,12 @@ void FeatureAutoencoder::standardise_latent(const float* u, int n) {
   encode(u, n, f.data());
   const auto F = in(f.data(), n, D);
   const Eigen::RowVectorXf mu = F.colwise().mean();
-  const Eigen::RowVectorXf sigma =
-      ((F.rowwise() - mu).array().square().colwise().mean().sqrt()).max(1e-3f).matrix();
+  // std::sqrt, not Eigen's packet sqrt (rsqrt and a Newton step, whose bits differ between CPU
+  // vendors): the weights should not depend on the processor that trained them.
+  const Eigen::RowVectorXf sigma = ((F.rowwise() - mu).array().square().colwise().mean())
+                                       .unaryExpr([](float v) { return std::sqrt(v); })
+                                       .max(1e-3f)
+                                       .matrix();
   // f = mu + sigma f': the encoder's last layer outputs f', and every head's first layer,
   // f W0^T + b0, becomes f' (W0 diag(sigma))^T + (b0 + W0 mu).
   auto w1 = out(tensor_data(enc1_.w), D, He);

@@ -25,6 +25,16 @@ inline Out out(float* p, int rows, int cols) { return out(p, rows, cols, cols); 
 inline Eigen::Map<const Eigen::RowVectorXf> row(const float* p, int n) {
   return Eigen::Map<const Eigen::RowVectorXf>(p, n);
 }
+// dst[j] += sum over i of m[i * stride + j] for j < cols, the rows added in order: a bias's
+// gradient. A plain loop: Eigen's colwise().sum() assigned to a Map summed the columns before the
+// first 32-byte-aligned one differently from the rest, so the bias gradients, and with them the
+// trained weights, depended on where the gradient buffer landed in memory.
+inline void add_column_sums(const float* m, int rows, int cols, int stride, float* dst) {
+  for (int i = 0; i < rows; ++i) {
+    const float* row = m + static_cast<std::size_t>(i) * static_cast<std::size_t>(stride);
+    for (int j = 0; j < cols; ++j) dst[j] += row[j];
+  }
+}
 inline bool ends_with(const std::string& s, const std::string& tail) {
   return s.size() >= tail.size() && s.compare(s.size() - tail.size(), tail.size(), tail) == 0;
 }

@@ -1,6 +1,5 @@
 #include "fslam/core/mapping/adam.hpp"
 
-#include <Eigen/Core>
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -8,6 +7,34 @@
 #include <utility>
 
 namespace fslam::core {
+namespace {
+
+struct AdamCoefficients {
+  float b1, one_minus_b1, b2, one_minus_b2;
+  float bc2_sqrt;  // sqrt(1 - b2^t)
+  float eps;
+};
+
+// One Adam update of `count` values:
+//   m = b1 m + (1 - b1) g,  v = b2 v + (1 - b2) g^2,  p -= size * m / (sqrt(v) / sqrt(1 - b2^t) + eps)
+// with size = lr / (1 - b1^t). A plain loop on purpose: GCC vectorises it (this file is built with
+// -fno-math-errno, so std::sqrt is an IEEE vsqrtps), and IEEE arithmetic gives the vectorised and
+// the scalar iterations the same bits, so a value's update does not depend on where its array
+// starts in memory. Eigen's packet sqrt (rsqrt and a Newton step) differed from the scalar sqrt
+// of the peeled elements in the last bit, and rsqrt differs between CPU vendors: maps with
+// features then depended on the heap's layout (docs/architecture.md, "Reproducible numbers").
+void adam_update(const AdamCoefficients& c, float size, float* __restrict p,
+                 const float* __restrict g, float* __restrict m, float* __restrict v,
+                 std::size_t count) {
+  for (std::size_t k = 0; k < count; ++k) {
+    m[k] = c.b1 * m[k] + c.one_minus_b1 * g[k];
+    v[k] = c.b2 * v[k] + c.one_minus_b2 * (g[k] * g[k]);
+    p[k] -= size * (m[k] / (std::sqrt(v[k]) / c.bc2_sqrt + c.eps));
+  }
+}
+
+}  // namespace
+
 AdamOptimizer::AdamOptimizer(std::size_t n, AdamSettings settings) : settings_(settings), n_(n) {}
 
 int AdamOptimizer::add_group(std::string name, std::size_t row, float lr) {
@@ -29,57 +56,35 @@ void AdamOptimizer::step(int g, float* params, const float* grads, std::size_t s
   ++group.steps;
   if (n_ == 0 || group.row == 0) return;
 
-  // Kingma & Ba, Alg. 1 with PyTorch's placement of eps:
-  //   m = b1 m + (1 - b1) g,  v = b2 v + (1 - b2) g^2,
-  //   p -= lr / (1 - b1^t) * m / (sqrt(v) / sqrt(1 - b2^t) + eps)
+  // Kingma & Ba, Alg. 1 with PyTorch's placement of eps (adam_update below).
   const double t = static_cast<double>(group.steps);
+  AdamCoefficients c;
+  c.b1 = static_cast<float>(settings_.beta1);
+  c.one_minus_b1 = static_cast<float>(1.0 - settings_.beta1);
+  c.b2 = static_cast<float>(settings_.beta2);
+  c.one_minus_b2 = static_cast<float>(1.0 - settings_.beta2);
+  c.bc2_sqrt = static_cast<float>(std::sqrt(1.0 - std::pow(settings_.beta2, t)));
+  c.eps = static_cast<float>(settings_.eps);
   const float step_size = static_cast<float>(group.lr / (1.0 - std::pow(settings_.beta1, t)));
-  const float bc2_sqrt = static_cast<float>(std::sqrt(1.0 - std::pow(settings_.beta2, t)));
-  const float b1 = static_cast<float>(settings_.beta1);
-  const float one_minus_b1 = static_cast<float>(1.0 - settings_.beta1);
-  const float b2 = static_cast<float>(settings_.beta2);
-  const float one_minus_b2 = static_cast<float>(1.0 - settings_.beta2);
-  const float eps = static_cast<float>(settings_.eps);
-  // Eigen keeps this vectorised, which GCC does not do for a plain loop over std::sqrt without
-  // -fno-math-errno (about 3x slower, measured). Eigen's packet sqrt (rsqrt and one Newton step
-  // under its default EIGEN_FAST_MATH) is within a couple of ulp of IEEE and flushes v below
-  // FLT_MIN to 0; both are far below what changes an optimiser step, but vectorised elements and
-  // the scalar tail can differ in the last bit.
-  auto update = [&](float size, auto p, auto grad, auto m, auto v) {
-    m = b1 * m + one_minus_b1 * grad;
-    v = b2 * v + one_minus_b2 * grad.square();
-    p -= size * (m / (v.sqrt() / bc2_sqrt + eps));
-  };
-  const Eigen::Index rows = static_cast<Eigen::Index>(group.row);
-  const Eigen::Index n = static_cast<Eigen::Index>(n_);
-  using Row = Eigen::Map<Eigen::ArrayXf>;
-  if (active != nullptr || !group.decay.empty()) {
-    // Row by row. Sparse (as 3DGS's visibility-masked Adam): rows that are not active keep their
-    // parameters and moments, so momentum from earlier views does not move what this view cannot
-    // see. Decaying: a Gaussian's rate is lr * floor^(min(k, N) / N) at its k-th step.
-    const int N = group.decay.empty() ? 0 : static_cast<int>(group.decay.size()) - 1;
-    for (std::size_t i = 0; i < n_; ++i) {
-      if (active != nullptr && !active[i]) continue;
-      float size = step_size;
-      if (N > 0) {
-        std::int32_t& k = group.row_steps[i];
-        size *= group.decay[static_cast<std::size_t>(std::min(k, N))];
-        if (k < N) ++k;
-      }
-      update(size, Row(params + i * stride, rows), Eigen::Map<const Eigen::ArrayXf>(grads + i * stride, rows),
-             Row(group.m.data() + i * group.row, rows), Row(group.v.data() + i * group.row, rows));
+  const std::size_t row = group.row;
+  if (active == nullptr && group.decay.empty() && stride == row) {
+    adam_update(c, step_size, params, grads, group.m.data(), group.v.data(), row * n_);
+    return;
+  }
+  // Row by row. Sparse (as 3DGS's visibility-masked Adam): rows that are not active keep their
+  // parameters and moments, so momentum from earlier views does not move what this view cannot
+  // see. Decaying: a Gaussian's rate is lr * floor^(min(k, N) / N) at its k-th step.
+  const int N = group.decay.empty() ? 0 : static_cast<int>(group.decay.size()) - 1;
+  for (std::size_t i = 0; i < n_; ++i) {
+    if (active != nullptr && !active[i]) continue;
+    float size = step_size;
+    if (N > 0) {
+      std::int32_t& k = group.row_steps[i];
+      size *= group.decay[static_cast<std::size_t>(std::min(k, N))];
+      if (k < N) ++k;
     }
-  } else if (stride == group.row) {
-    using Flat = Eigen::Map<Eigen::ArrayXf>;
-    update(step_size, Flat(params, rows * n), Eigen::Map<const Eigen::ArrayXf>(grads, rows * n),
-           Flat(group.m.data(), rows * n), Flat(group.v.data(), rows * n));
-  } else {
-    using Block = Eigen::Map<Eigen::ArrayXXf, 0, Eigen::OuterStride<>>;
-    using ConstBlock = Eigen::Map<const Eigen::ArrayXXf, 0, Eigen::OuterStride<>>;
-    const Eigen::OuterStride<> outer(static_cast<Eigen::Index>(stride));
-    update(step_size, Block(params, rows, n, outer), ConstBlock(grads, rows, n, outer),
-           Eigen::Map<Eigen::ArrayXXf>(group.m.data(), rows, n),
-           Eigen::Map<Eigen::ArrayXXf>(group.v.data(), rows, n));
+    adam_update(c, size, params + i * stride, grads + i * stride, group.m.data() + i * row,
+                group.v.data() + i * row, row);
   }
 }
 
