@@ -14,6 +14,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "fslam/core/compute/product_blocking.hpp"
 #include "fslam/core/features/feature_autoencoder.hpp"
 
 namespace {
@@ -42,6 +43,7 @@ double median_ms(int repeats, const std::function<void()>& run) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  fslam::core::use_portable_product_blocking();  // the products planned as fslam and the server plan them
   CLI::App app{"feature autoencoder cost per batch, one thread"};
   std::vector<int> pixels = {2000, 19200};
   int repeats = 50;
