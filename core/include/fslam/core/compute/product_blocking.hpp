@@ -1,8 +1,8 @@
 // Eigen's matrix products split their depth into blocks sized from the processor's caches, read
 // from CPUID, and sum block by block, so one product rounds differently on processors with other
-// caches. Measured: the feature autoencoder's 352-deep products ran in one block on a 48 KiB-L1
-// Intel and in two of 184 on a 32 KiB-L1 processor, and the same training gave other weights on
-// each. Planning with fixed cache sizes makes every product block, and so round, the same
+// caches. Eigen's own planner (computeProductBlockingSizes) puts the feature autoencoder's
+// 352-deep products in one block with a 48 KiB L1 (the Intel VM it ran on) and in two of 184 with
+// a 32 KiB L1, so one training gave other weights on each kind of processor. Planning with fixed cache sizes makes every product block, and so round, the same
 // everywhere (docs/architecture.md, "Reproducible numbers").
 #pragma once
 
