@@ -2,8 +2,9 @@
 // from CPUID, and sum block by block, so one product rounds differently on processors with other
 // caches. Eigen's own planner (computeProductBlockingSizes) puts the feature autoencoder's
 // 352-deep products in one block with a 48 KiB L1 (the Intel VM it ran on) and in two of 184 with
-// a 32 KiB L1, so one training gave other weights on each kind of processor. Planning with fixed cache sizes makes every product block, and so round, the same
-// everywhere (docs/architecture.md, "Reproducible numbers").
+// a 32 KiB L1, so the same training can round differently on each. Planning with fixed cache
+// sizes makes every product block, and so round, the same everywhere (docs/architecture.md,
+// "Reproducible numbers").
 #pragma once
 
 namespace fslam::core {
