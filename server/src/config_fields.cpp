@@ -233,6 +233,7 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   map_target.add("min_point_distance", &MapTarget::min_point_distance);
   map_target.add("covariance", &MapTarget::covariance, kMapTargetCovariances);
   map_target.add("wait_for_mapper", &MapTarget::wait_for_mapper);
+  map_target.add("observation_weight", &MapTarget::observation_weight);
 
   using Gicp = core::GicpConfig;
   const auto gicp = section(f, "tracker.gicp", [](auto& c) -> auto& { return c.tracker.gicp; });

@@ -15,9 +15,11 @@ decoded, and the median over frames of the registration's mean feature similarit
 at the solution; 1: the frame's features equal their matched targets'). Rows (--rows picks some, comma-separated):
   points           point map target, features off (the default without weights)
   points-feat      point map target, features on (the default with weights)
-  gauss            Gaussian map target (mapper.insert_from=source), features off, alpha on
+  gauss            Gaussian map target (mapper.insert_from=source), features off, alpha on, each
+                   target covariance divided by the keyframes that see it (observation_weight)
   gauss-noalpha    Gaussian map target, features off, alpha off
-  gauss-feat       Gaussian map target, features on, alpha on (the paper's formulation)
+  gauss-feat       Gaussian map target, features on, alpha on (the paper's formulation, with
+                   the observation weight)
   gauss-feat-noalpha  Gaussian map target, features on, alpha off
   gauss-feat-latent   as gauss-feat with the latent L_feat (mapper.feature_loss=latent)
   gauss-nbr        as gauss, target covariances from the neighbouring means
@@ -27,6 +29,10 @@ at the solution; 1: the frame's features equal their matched targets'). Rows (--
                    (tracker.map_target.wait_for_mapper: no lag behind the tracker; not real time)
   gauss-feat-wait  as gauss-feat, tracking waits for the target (the paper's formulation, no lag)
   gauss-noprune    as gauss, no importance pruning (mapper.prune_percentile_*=0)
+  gauss-noobs      as gauss, each Gaussian weighing as one observation
+                   (tracker.map_target.observation_weight=false: the paper's eq. gicp_sets)
+  gauss-feat-noobs as gauss-feat without the observation weight (the paper's formulation as written)
+  gauss-wait-noobs as gauss-wait without the observation weight
 Stretches (--stretches picks some): rk0-599, rk0-299, rk300-599 (7-Scenes redkitchen), png50
 (redkitchen frames 150-199, PNG colour), synth (a `fslam synth` room, 300 frames, Kinect noise,
 seed --synth-seed).
@@ -92,6 +98,9 @@ row_args() {
     gauss-wait) echo "${gauss[@]}" --set tracker.map_target.wait_for_mapper=true ;;
     gauss-feat-wait) echo "${gauss[@]}" --features "${WEIGHTS}" --set tracker.map_target.wait_for_mapper=true ;;
     gauss-noprune) echo "${gauss[@]}" --set mapper.prune_percentile_mapping=0 --set mapper.prune_percentile_tracking=0 ;;
+    gauss-noobs) echo "${gauss[@]}" --set tracker.map_target.observation_weight=false ;;
+    gauss-feat-noobs) echo "${gauss[@]}" --features "${WEIGHTS}" --set tracker.map_target.observation_weight=false ;;
+    gauss-wait-noobs) echo "${gauss[@]}" --set tracker.map_target.wait_for_mapper=true --set tracker.map_target.observation_weight=false ;;
     *) echo "unknown row: $1" >&2; return 1 ;;
   esac
 }

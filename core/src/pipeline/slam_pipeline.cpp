@@ -296,9 +296,18 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   config.min_point_distance = std::min(config_.tracker.map_target.min_point_distance, config.voxel_size);
   const Eigen::Vector3f centre = kf.T_world_camera.translation().cast<float>();
   auto target = std::make_shared<LocalMap>(config);
-  target->insert(map_target_points(mapper_.map(), centre, config.radius, config_.tracker.map_target,
-                                   config_.tracker.preprocess),
-                 centre);
+  GaussianPoints points = map_target_points(mapper_.map(), centre, config.radius, config_.tracker.map_target,
+                                            config_.tracker.preprocess);
+  if (config_.tracker.map_target.observation_weight) {
+    std::vector<ObservingDepth> views;  // the stored keyframes' depth (pixels shared)
+    for (const KeyframeImages& kf : *mapper_.published_keyframe_images()) {
+      if (kf.depth.empty()) continue;
+      views.push_back({kf.input_camera.scaled(static_cast<double>(kf.depth.cols) / kf.input_camera.width),
+                       kf.T_world_camera, kf.depth});
+    }
+    weight_by_observations(views, config_.tracker.gicp.max_correspondence_distance, &points);
+  }
+  target->insert(points, centre);
   std::lock_guard<std::mutex> lock(mutex_);
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;

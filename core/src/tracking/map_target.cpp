@@ -6,9 +6,11 @@
 #include <vector>
 
 #include <Eigen/Eigenvalues>
+#include <tbb/parallel_for.h>
 
 #include "fslam/core/error.hpp"
 #include "fslam/core/math/splat_math.hpp"
+#include "fslam/core/tracking/point_features.hpp"
 
 namespace fslam::core {
 
@@ -89,6 +91,21 @@ GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& 
   for (std::size_t k = 0; k < out.size(); ++k)
     out.covariances[k] *= preprocess.depth_noise.covariance_scale((out.means[k] - centre_world).norm());
   return out;
+}
+
+void weight_by_observations(const std::vector<ObservingDepth>& views, float max_depth_difference,
+                            GaussianPoints* points) {
+  std::vector<Eigen::Isometry3d> T_camera_world;
+  T_camera_world.reserve(views.size());
+  for (const ObservingDepth& view : views) T_camera_world.push_back(view.T_world_camera.inverse());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, points->size()), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k != r.end(); ++k) {
+      int seen = 0;
+      for (std::size_t v = 0; v < views.size(); ++v)
+        seen += depth_sees(views[v].camera, views[v].depth, T_camera_world[v], points->means[k], max_depth_difference);
+      if (seen > 1) points->covariances[k] /= static_cast<float>(seen);
+    }
+  });
 }
 
 namespace {

@@ -57,6 +57,22 @@ void sample_point_features(const PlanarImage& latent, const PinholeCamera& camer
   }
 }
 
+bool depth_sees(const PinholeCamera& camera, const cv::Mat& depth, const Eigen::Isometry3d& T_camera_world,
+                const Eigen::Vector3f& point_world, float max_depth_difference, Eigen::Vector2d* uv) {
+  assert(depth.type() == CV_32FC1);
+  const Eigen::Vector3d p = T_camera_world * point_world.cast<double>();
+  if (!(p.z() > 0)) return false;
+  const Eigen::Vector2d pixel = camera.project(p);
+  // The pixel holding the projection, tested in floating point before any conversion to int.
+  if (!(pixel.x() >= -0.5 && pixel.x() < depth.cols - 0.5 && pixel.y() >= -0.5 && pixel.y() < depth.rows - 0.5))
+    return false;
+  const float z = depth.at<float>(static_cast<int>(std::floor(pixel.y() + 0.5)),
+                                  static_cast<int>(std::floor(pixel.x() + 0.5)));
+  if (!(z > 0.0f) || !(std::abs(z - p.z()) <= max_depth_difference)) return false;
+  if (uv != nullptr) *uv = pixel;
+  return true;
+}
+
 std::size_t refresh_map_features(const PlanarImage& latent, const PinholeCamera& camera,
                                  const cv::Mat& depth, const Eigen::Isometry3d& T_world_camera,
                                  float max_depth_difference, LocalMap* map) {
@@ -65,17 +81,8 @@ std::size_t refresh_map_features(const PlanarImage& latent, const PinholeCamera&
   const Eigen::Isometry3d T_camera_world = T_world_camera.inverse();
   std::size_t refreshed = 0;
   map->update_features([&](const TargetPoint& point, float* feature) {
-    const Eigen::Vector3d p = T_camera_world * point.mean.cast<double>();
-    if (!(p.z() > 0)) return;
-    const Eigen::Vector2d uv = camera.project(p);
-    // The pixel holding uv, tested in floating point before any conversion to int.
-    if (!(uv.x() >= -0.5 && uv.x() < depth.cols - 0.5 && uv.y() >= -0.5 &&
-          uv.y() < depth.rows - 0.5))
-      return;
-    const int u = static_cast<int>(std::floor(uv.x() + 0.5));
-    const int v = static_cast<int>(std::floor(uv.y() + 0.5));
-    const float z = depth.at<float>(v, u);
-    if (!(z > 0.0f) || !(std::abs(z - p.z()) <= max_depth_difference)) return;
+    Eigen::Vector2d uv;
+    if (!depth_sees(camera, depth, T_camera_world, point.mean, max_depth_difference, &uv)) return;
     sample_latent(latent, camera, uv, feature);
     ++refreshed;
   });

@@ -80,6 +80,38 @@ TEST(MapTarget, CovarianceIsAUnitDiscAcrossTheGaussiansThinnestAxis) {
 // covariance: neighbours ignores each Gaussian's own shape: Gaussians on the plane z = 1 whose
 // thinnest axes all lie in the plane get the plane's disc (normal z) from where their means lie,
 // and an isolated Gaussian (fewer neighbours than min_neighbours) is no target.
+// weight_by_observations: a point two depth views see weighs as two observations (covariance
+// halved); one hidden behind a nearer surface in a view, or outside it, is not counted there.
+TEST(MapTarget, ObservationWeightCountsTheViewsWhoseDepthSeesThePoint) {
+  PinholeCamera camera;
+  camera.fx = camera.fy = 100.0;
+  camera.cx = camera.cy = 31.5;
+  camera.width = camera.height = 64;
+  // Two cameras at the origin and 10 cm to the side, both looking down +z at a wall 2 m away;
+  // in the second, the left half of the image sees a box 1 m away instead.
+  ObservingDepth a{camera, Eigen::Isometry3d::Identity(), cv::Mat(64, 64, CV_32FC1, cv::Scalar(2.0f))};
+  ObservingDepth b{camera, Eigen::Isometry3d(Eigen::Translation3d(0.1, 0.0, 0.0)),
+                   cv::Mat(64, 64, CV_32FC1, cv::Scalar(2.0f))};
+  b.depth.colRange(0, 32).setTo(cv::Scalar(1.0f));
+  GaussianPoints points;
+  const Eigen::Matrix3f cov = Eigen::Vector3f(1.0f, 1.0f, 0.001f).asDiagonal();
+  points.means = {{0.4f, 0.0f, 2.0f},    // right of both images' centres: seen by both
+                  {-0.1f, 0.0f, 2.0f},   // behind the box in b: seen by a only
+                  {0.15f, 0.0f, 2.05f},  // 5 cm off both depths: seen by neither at 3 cm
+                  {2.0f, 0.0f, 2.0f}};   // outside both images
+  points.covariances.assign(points.means.size(), cov);
+  points.opacities.assign(points.means.size(), 1.0f);
+  weight_by_observations({a, b}, 0.03f, &points);
+  EXPECT_TRUE(points.covariances[0].isApprox(cov / 2.0f));
+  EXPECT_TRUE(points.covariances[1].isApprox(cov));
+  EXPECT_TRUE(points.covariances[2].isApprox(cov));
+  EXPECT_TRUE(points.covariances[3].isApprox(cov));
+  // With a gate that takes the 5 cm, the third point is seen by both.
+  points.covariances.assign(points.means.size(), cov);
+  weight_by_observations({a, b}, 0.08f, &points);
+  EXPECT_TRUE(points.covariances[2].isApprox(cov / 2.0f));
+}
+
 TEST(MapTarget, NeighbourCovarianceIsThePlaneOfTheMeansNotTheGaussiansShape) {
   GaussianMap map;
   map.feature_dim = 0;

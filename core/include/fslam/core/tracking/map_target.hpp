@@ -4,8 +4,13 @@
 // moves what the tracker registers against.
 #pragma once
 
-#include <Eigen/Core>
+#include <vector>
 
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+
+#include "fslam/core/geometry/pinhole_camera.hpp"
 #include "fslam/core/map/gaussian_map.hpp"
 #include "fslam/core/tracking/gaussian_points.hpp"
 #include "fslam/core/tracking/local_map.hpp"
@@ -30,8 +35,28 @@ struct MapTargetConfig {
   // 120 s) for the target built from the map version that contains that keyframe, so the target
   // never lags the tracker (docs/tracking.md "Why the Gaussian target loses").
   bool wait_for_mapper = false;
+  // Each target covariance divided by the number of the mapper's stored keyframes whose depth
+  // sees the Gaussian (weight_by_observations): what the point map's fusion gives re-observed
+  // surfaces. Off: every Gaussian weighs as one observation (the paper's eq. gicp_sets).
+  bool observation_weight = true;
   bool is_valid(std::string* why = nullptr) const;
 };
+
+// A depth image that observed the map (a mapper's stored keyframe), for weight_by_observations.
+struct ObservingDepth {
+  PinholeCamera camera;  // of `depth`'s size
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+  cv::Mat depth;  // CV_32FC1 metres, 0 = missing
+};
+
+// Divides each point's covariance by the number of `views` whose depth sees its mean
+// (depth_sees within max_depth_difference), at least 1. The point map's fusion multiplies a
+// re-observed point's Gaussians (LocalMap::insert: information adds, N observations give 1/N of
+// the covariance), so a surface many keyframes saw weighs more in GICP and holds the frame to what
+// was mapped before; a map Gaussian's target covariance would otherwise be one observation's
+// however many keyframes fitted it (docs/tracking.md "Why the Gaussian target loses").
+void weight_by_observations(const std::vector<ObservingDepth>& views, float max_depth_difference,
+                            GaussianPoints* points);
 
 // The Gaussians of `map` within `radius` of `centre_world` as GICP target points, most opaque
 // first: mean; covariance as config.covariance says (from R diag(s^2 + filter) R^T of scale and

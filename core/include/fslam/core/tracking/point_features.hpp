@@ -22,11 +22,17 @@ namespace fslam::core {
 void sample_point_features(const PlanarImage& latent, const PinholeCamera& camera,
                            GaussianPoints* points_camera);
 
+// Whether a depth image sees a world point: in front of the camera, inside the image, and
+// within max_depth_difference (metres) of the depth at the pixel holding its projection (an
+// occluded point is not seen). depth: CV_32FC1 metres, 0 = missing, the size of `camera`.
+// uv (optional): the projection, set when seen.
+bool depth_sees(const PinholeCamera& camera, const cv::Mat& depth, const Eigen::Isometry3d& T_camera_world,
+                const Eigen::Vector3f& point_world, float max_depth_difference, Eigen::Vector2d* uv = nullptr);
+
 // A keyframe re-observes the map: every stored point it sees takes the keyframe's latent where it
 // projects (sampled as above), so target features follow the newest view as the paper's map
-// features follow the keyframes they are fitted to (L_feat of eq. modeling_losses). Seen: in
-// front of the camera, inside the image, and within max_depth_difference (metres) of the
-// keyframe's depth at its pixel (occluded points keep theirs). latent: [D, h, w] over the frame of
+// features follow the keyframes they are fitted to (L_feat of eq. modeling_losses). Seen:
+// depth_sees (occluded points keep theirs). latent: [D, h, w] over the frame of
 // `camera`; depth: [H, W] CV_32FC1 metres, 0 = missing, the size of `camera`. Does nothing
 // unless the map's feature_dim is D. Returns the number of points refreshed.
 std::size_t refresh_map_features(const PlanarImage& latent, const PinholeCamera& camera,
