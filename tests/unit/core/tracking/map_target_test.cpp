@@ -77,9 +77,6 @@ TEST(MapTarget, CovarianceIsAUnitDiscAcrossTheGaussiansThinnestAxis) {
   }
 }
 
-// covariance: neighbours ignores each Gaussian's own shape: Gaussians on the plane z = 1 whose
-// thinnest axes all lie in the plane get the plane's disc (normal z) from where their means lie,
-// and an isolated Gaussian (fewer neighbours than min_neighbours) is no target.
 // weight_by_observations: a point two depth views see weighs as two observations (covariance
 // halved); one hidden behind a nearer surface in a view, or outside it, is not counted there.
 TEST(MapTarget, ObservationWeightCountsTheViewsWhoseDepthSeesThePoint) {
@@ -112,6 +109,9 @@ TEST(MapTarget, ObservationWeightCountsTheViewsWhoseDepthSeesThePoint) {
   EXPECT_TRUE(points.covariances[2].isApprox(cov / 2.0f));
 }
 
+// covariance: neighbours ignores each Gaussian's own shape: Gaussians on the plane z = 1 whose
+// thinnest axes all lie in the plane get the plane's disc (normal z) from where their means lie,
+// and an isolated Gaussian (fewer neighbours than min_neighbours) is no target.
 TEST(MapTarget, NeighbourCovarianceIsThePlaneOfTheMeansNotTheGaussiansShape) {
   GaussianMap map;
   map.feature_dim = 0;
