@@ -105,24 +105,12 @@ row_args() {
   esac
 }
 
-# Per stretch: dataset, frames and preset.
-stretch_args() {
-  local preset=(--config "${REPO}/configs/presets/seven_scenes.yaml")
-  case "$1" in
-    rk0-599) echo --dataset "${DATA}/redkitchen" --frames 0:600 "${preset[@]}" ;;
-    rk0-299) echo --dataset "${DATA}/redkitchen" --frames 0:300 "${preset[@]}" ;;
-    rk300-599) echo --dataset "${DATA}/redkitchen" --frames 300:600 "${preset[@]}" ;;
-    png50) echo --dataset "${DATA}/redkitchen_png50" "${preset[@]}" ;;
-    synth) echo --dataset "${OUT}/synth${SYNTH_SEED}" ;;
-    *) echo "unknown stretch: $1" >&2; return 1 ;;
-  esac
-}
-
-if [[ ",${STRETCHES}," == *,synth,* && ! -f "${OUT}/synth${SYNTH_SEED}/.complete" ]]; then
-  echo "synthesising room seed ${SYNTH_SEED} (300 frames) ..." >&2
-  "${FSLAM}" synth --out "${OUT}/synth${SYNTH_SEED}" --frames 300 --seed "${SYNTH_SEED}" >/dev/null
-  touch "${OUT}/synth${SYNTH_SEED}/.complete"
-fi
+# The stretches (tests/benchmarks/stretches.sh); `synth` is the room of --synth-seed.
+# shellcheck source=tests/benchmarks/stretches.sh
+source "${REPO}/tests/benchmarks/stretches.sh"
+stretch_name() { if [[ "$1" == synth ]]; then echo "synth${SYNTH_SEED}"; else echo "$1"; fi; }
+IFS=',' read -r -a stretch_list <<<"${STRETCHES}"
+for stretch in "${stretch_list[@]}"; do ensure_stretch "$(stretch_name "${stretch}")"; done
 
 SUMMARY="${OUT}/summary.txt"
 {
@@ -130,14 +118,13 @@ SUMMARY="${OUT}/summary.txt"
   echo "| stretch | row | ATE cm | tracking ms p50 | held-out PSNR dB | frames/s | Gaussians | decoded error pretrained -> online | feature similarity p50 |"
   echo "|---|---|---|---|---|---|---|---|---|"
 } | tee "${SUMMARY}"
-IFS=',' read -r -a stretch_list <<<"${STRETCHES}"
 IFS=',' read -r -a row_list <<<"${ROWS}"
 for stretch in "${stretch_list[@]}"; do
   for row in "${row_list[@]}"; do
     dir="${OUT}/${stretch}/${row}"
     mkdir -p "${dir}"
     # shellcheck disable=SC2046  # the argument lists are word lists by design
-    if ! "${FSLAM}" run $(stretch_args "${stretch}") $(row_args "${row}") --threads "${THREADS}" \
+    if ! "${FSLAM}" run $(stretch_args "$(stretch_name "${stretch}")") $(row_args "${row}") --threads "${THREADS}" \
         --renders 0 --out "${dir}" >"${dir}/log.txt" 2>&1; then
       echo "| ${stretch} | ${row} | failed: see ${dir}/log.txt |" | tee -a "${SUMMARY}"
       continue
