@@ -19,8 +19,10 @@ double now_ms() {
 
 // Re-registration after a loss searches wider: the prediction may be off by more than one frame.
 constexpr float kRecoveryDistanceFactor = 2.0f;
-// target = gaussians: keyframes kept for the bridge while the mapper has not mapped them.
-constexpr std::size_t kMaxUnmappedKeyframes = 32;
+// target = gaussians: keyframes kept for the bridge while the mapper has not mapped them. A
+// mapper at full iterations on two CPU cores falls ~80 keyframes behind a tracker that is not
+// paced (redkitchen 0-599); 128 keyframes of stride-8 points with 16-D features are ~75 MB.
+constexpr std::size_t kMaxUnmappedKeyframes = 128;
 
 }  // namespace
 
@@ -53,12 +55,29 @@ const char* to_string(TrackingTarget target) {
   return target == TrackingTarget::gaussians ? "gaussians" : "points";
 }
 
-void Tracker::set_map_target(const LocalMap& target, std::int64_t last_keyframe_id) {
+void Tracker::set_map_target(std::shared_ptr<const LocalMap> target, std::int64_t last_keyframe_id) {
   while (!unmapped_.empty() && unmapped_.front().frame_id <= last_keyframe_id) unmapped_.pop_front();
-  map_ = target;
-  for (const Keyframe& kf : unmapped_) {
-    map_.insert(transformed(kf.points_camera, kf.T_world_camera), kf.T_world_camera.translation().cast<float>());
+  map_target_ = std::move(target);
+  map_ = *map_target_;
+  map_.set_fuse(config_.local_map.fuse);  // the target's own setting (no fusing) is for its Gaussians
+  for (const Keyframe& kf : unmapped_)
+    add_to_bridge(transformed(kf.points_camera, kf.T_world_camera), kf.T_world_camera.translation().cast<float>());
+}
+
+void Tracker::add_to_bridge(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world) {
+  if (!map_target_) {
+    map_.insert(points_world, camera_position_world);
+    return;
   }
+  // Where the map has the surface, its Gaussians are the target; a point the target lacks can
+  // meet only other bridge points within min_point_distance, so insert() fuses it with those
+  // (as the point map fuses re-observations).
+  std::vector<std::size_t> kept;
+  kept.reserve(points_world.size());
+  const float gap = config_.local_map.min_point_distance;
+  for (std::size_t i = 0; i < points_world.size(); ++i)
+    if (map_target_->nearest(points_world.means[i], gap) == nullptr) kept.push_back(i);
+  map_.insert(selected(points_world, kept), camera_position_world);
 }
 
 const char* to_string(TrackingState state) {
@@ -87,6 +106,7 @@ void Tracker::reset() {
   relocalise_first_ = false;
   map_.clear();
   unmapped_.clear();
+  map_target_.reset();
   T_last_.reset();
   T_velocity_.reset();
   keyframes_.clear();
@@ -172,7 +192,9 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     // The keyframe's points are fused into the map (moving the points they re-observe), then
     // the keyframe re-observes the map's features; a stored point within the correspondence
     // gate of the keyframe's depth is the surface the keyframe sees.
-    map_.insert(transformed(source, T_world_camera), T_world_camera.translation().cast<float>());
+    const Eigen::Vector3f camera_position = T_world_camera.translation().cast<float>();
+    if (config_.target == TrackingTarget::gaussians) add_to_bridge(transformed(source, T_world_camera), camera_position);
+    else map_.insert(transformed(source, T_world_camera), camera_position);
     // On the map's Gaussians the target features are the distilled ones (eq. feat_dist's f_t):
     // keyframes refresh only their own points' features.
     if (config_.target == TrackingTarget::points && config_.refresh_features && latent != nullptr &&

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
@@ -139,6 +140,93 @@ TEST(MapTarget, NeighbourCovarianceIsThePlaneOfTheMeansNotTheGaussiansShape) {
   }
 }
 
+// The bridge fills only what the map target lacks: a keyframe point within min_point_distance
+// of a target point is left out, so the target's Gaussians are never fused with raw points; the
+// others are added and fused among themselves, as the point map fuses re-observations.
+TEST(MapTarget, BridgeAddsOnlyThePointsTheTargetLacksAndFusesThem) {
+  const SyntheticRoom room = make_room(1);
+  SynthOptions options;
+  options.frames = 2;
+  const Trajectory trajectory = make_trajectory(room, options);
+  const PinholeCamera camera = synth_default_camera().scaled(0.25);
+  TrackerConfig config;
+  config.preprocess.stride = 2;
+  config.target = TrackingTarget::gaussians;
+  config.keyframe.translation = 1e-6;  // both frames are keyframes
+  config.keyframe.rotation_deg = 1e-6;
+  Tracker tracker(config);
+  std::vector<GaussianPoints> raw;  // each keyframe's points in the world, as the tracker got them
+  for (std::size_t i = 0; i < 2; ++i) {
+    RgbdFrame frame;
+    frame.id = static_cast<std::int64_t>(7 + i);
+    frame.timestamp = trajectory[i].timestamp;
+    const SynthView view = render_view(room, camera, trajectory[i].T_world_camera);
+    frame.colour = view.colour;
+    frame.depth = view.depth;
+    frame.camera = camera;
+    if (i == 0) tracker.set_initial_pose(trajectory[0].T_world_camera);
+    PreparedSource source;
+    TrackingResult result;
+    std::string why;
+    ASSERT_TRUE(tracker.preprocess(frame, nullptr, &source, &why)) << why;
+    ASSERT_TRUE(tracker.track_prepared(frame, source, &result, &why, nullptr)) << why;
+    ASSERT_TRUE(result.keyframe) << "frame " << i;
+    raw.push_back(transformed(source.points, result.T_world_camera));
+  }
+  const GaussianPoints& first = raw[0];
+  ASSERT_GT(first.size(), 100u);
+
+  // A target that has the left half of the first keyframe's surface (x < median, world), 2 mm
+  // off and with ten times the covariance, made as SlamPipeline makes targets (no fusing).
+  std::vector<float> xs;
+  for (const Eigen::Vector3f& m : first.means) xs.push_back(m.x());
+  std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
+  const float median_x = xs[xs.size() / 2];
+  GaussianPoints half;
+  for (std::size_t i = 0; i < first.size(); ++i) {
+    if (first.means[i].x() >= median_x) continue;
+    half.means.push_back(first.means[i] + Eigen::Vector3f(0.0f, 0.0f, 0.002f));
+    half.covariances.push_back(10.0f * first.covariances[i]);
+  }
+  LocalMapConfig local = config.local_map;
+  local.fuse = false;
+  auto target = std::make_shared<LocalMap>(local);
+  target->insert(half, trajectory[0].T_world_camera.translation().cast<float>());
+  const GaussianPoints target_points = target->points();
+  tracker.set_map_target(target, 6);  // neither keyframe is in this version: both bridged
+
+  // The target's points are there untouched ...
+  const LocalMap& bridged = tracker.local_map();
+  for (std::size_t i = 0; i < target_points.size(); ++i) {
+    const TargetPoint* p = bridged.nearest(target_points.means[i], 1e-5f);
+    ASSERT_NE(p, nullptr) << "target point " << i << " moved";
+    EXPECT_TRUE(p->covariance.isApprox(target_points.covariances[i])) << "target point " << i << " was fused";
+  }
+  // ... every other point is the keyframes', where the target has nothing within
+  // min_point_distance ...
+  const auto is_raw = [&](const Eigen::Vector3f& m) {
+    for (const GaussianPoints& kf : raw)
+      for (const Eigen::Vector3f& r : kf.means)
+        if ((r - m).norm() < 1e-6f) return true;
+    return false;
+  };
+  const GaussianPoints all = bridged.points();
+  std::size_t added = 0, fused = 0;
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    const TargetPoint* t = target->nearest(all.means[i], 1e-5f);
+    if (t != nullptr && t->covariance.isApprox(all.covariances[i])) continue;  // a target point
+    ++added;
+    EXPECT_EQ(target->nearest(all.means[i], local.min_point_distance), nullptr)
+        << "bridge point " << i << " beside a target point";
+    fused += !is_raw(all.means[i]);
+  }
+  EXPECT_EQ(all.size(), target_points.size() + added);
+  EXPECT_GT(added, first.size() / 3) << "the right half is bridged";
+  // ... and the second keyframe's re-observations of the first's surface were fused into it
+  // (their means averaged), not dropped.
+  EXPECT_GT(fused, added / 4) << fused << " of " << added << " bridge points fused";
+}
+
 // The tracker follows the synthetic room against targets made from a Gaussian map that a stand-in
 // mapper builds from every keyframe's observed surface, published one keyframe late (the bridge:
 // the keyframe the map does not contain yet is added from the tracker's own points).
@@ -193,7 +281,7 @@ TEST(MapTarget, TrackerFollowsTheRoomAgainstAMapPublishedOneKeyframeLate) {
       LocalMap target(local);
       const Eigen::Vector3f centre = result.T_world_camera.translation().cast<float>();
       target.insert(map_target_points(map, centre, local.radius, config.map_target, config.preprocess), centre);
-      tracker.set_map_target(target, id);
+      tracker.set_map_target(std::make_shared<const LocalMap>(std::move(target)), id);
     }
     pending.emplace_back(frame.id, transformed(source.points, result.T_world_camera));
   }

@@ -57,6 +57,9 @@ class LocalMap {
   const TargetPoint* nearest(const Eigen::Vector3f& query, float max_distance,
                              float* squared_distance = nullptr) const;
 
+  // Whether later insertions fuse a point into a stored one within min_point_distance (true) or
+  // drop it (false); what is stored stays as it is.
+  void set_fuse(bool fuse) { config_.fuse = fuse; }
   std::size_t size() const { return size_; }
   std::size_t voxel_count() const { return voxels_.size(); }
   int feature_dim() const { return feature_dim_; }
