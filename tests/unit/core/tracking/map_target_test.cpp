@@ -30,6 +30,21 @@ void add(GaussianMap* map, Eigen::Vector3f mean, const float q[4], Eigen::Vector
   map->push_back(mean.data(), q, log_s, logit_of(p), sh.data(), feature.data(), 0.0f);
 }
 
+// Renders the room at `gt` as frame `id` and tracks it; the prepared source stays in `source`.
+void track_view(Tracker* tracker, const SyntheticRoom& room, const PinholeCamera& camera,
+                const StampedPose& gt, std::int64_t id, PreparedSource* source, TrackingResult* result) {
+  RgbdFrame frame;
+  frame.id = id;
+  frame.timestamp = gt.timestamp;
+  const SynthView view = render_view(room, camera, gt.T_world_camera);
+  frame.colour = view.colour;
+  frame.depth = view.depth;
+  frame.camera = camera;
+  std::string why;
+  ASSERT_TRUE(tracker->preprocess(frame, nullptr, source, &why)) << why;
+  ASSERT_TRUE(tracker->track_prepared(frame, *source, result, &why, nullptr)) << why;
+}
+
 TEST(MapTarget, KeepsOpaqueGaussiansInRangeMostOpaqueFirstWithTheirFeatures) {
   GaussianMap map;
   map.feature_dim = 4;
@@ -156,20 +171,12 @@ TEST(MapTarget, BridgeAddsOnlyThePointsTheTargetLacksAndFusesThem) {
   config.keyframe.rotation_deg = 1e-6;
   Tracker tracker(config);
   std::vector<GaussianPoints> raw;  // each keyframe's points in the world, as the tracker got them
+  tracker.set_initial_pose(trajectory[0].T_world_camera);
   for (std::size_t i = 0; i < 2; ++i) {
-    RgbdFrame frame;
-    frame.id = static_cast<std::int64_t>(7 + i);
-    frame.timestamp = trajectory[i].timestamp;
-    const SynthView view = render_view(room, camera, trajectory[i].T_world_camera);
-    frame.colour = view.colour;
-    frame.depth = view.depth;
-    frame.camera = camera;
-    if (i == 0) tracker.set_initial_pose(trajectory[0].T_world_camera);
     PreparedSource source;
     TrackingResult result;
-    std::string why;
-    ASSERT_TRUE(tracker.preprocess(frame, nullptr, &source, &why)) << why;
-    ASSERT_TRUE(tracker.track_prepared(frame, source, &result, &why, nullptr)) << why;
+    ASSERT_NO_FATAL_FAILURE(
+        track_view(&tracker, room, camera, trajectory[i], static_cast<std::int64_t>(7 + i), &source, &result));
     ASSERT_TRUE(result.keyframe) << "frame " << i;
     raw.push_back(transformed(source.points, result.T_world_camera));
   }
@@ -247,19 +254,10 @@ TEST(MapTarget, TrackerFollowsTheRoomAgainstAMapPublishedOneKeyframeLate) {
   std::size_t keyframes = 0;
   for (std::size_t i = 0; i < trajectory.size(); ++i) {
     const StampedPose& gt = trajectory[i];
-    RgbdFrame frame;
-    frame.id = static_cast<std::int64_t>(i);
-    frame.timestamp = gt.timestamp;
-    const SynthView view = render_view(room, camera, gt.T_world_camera);
-    frame.colour = view.colour;
-    frame.depth = view.depth;
-    frame.camera = camera;
     if (i == 0) tracker.set_initial_pose(gt.T_world_camera);
     PreparedSource source;
     TrackingResult result;
-    std::string why;
-    ASSERT_TRUE(tracker.preprocess(frame, nullptr, &source, &why)) << why;
-    ASSERT_TRUE(tracker.track_prepared(frame, source, &result, &why, nullptr)) << why;
+    ASSERT_NO_FATAL_FAILURE(track_view(&tracker, room, camera, gt, static_cast<std::int64_t>(i), &source, &result));
     ASSERT_NE(result.state, TrackingState::lost) << "frame " << i << ": " << result.message;
     estimate.push_back({gt.timestamp, result.T_world_camera});
     if (!result.keyframe) continue;
@@ -283,7 +281,7 @@ TEST(MapTarget, TrackerFollowsTheRoomAgainstAMapPublishedOneKeyframeLate) {
       target.insert(map_target_points(map, centre, local.radius, config.map_target, config.preprocess), centre);
       tracker.set_map_target(std::make_shared<const LocalMap>(std::move(target)), id);
     }
-    pending.emplace_back(frame.id, transformed(source.points, result.T_world_camera));
+    pending.emplace_back(static_cast<std::int64_t>(i), transformed(source.points, result.T_world_camera));
   }
   EXPECT_GE(keyframes, 3u) << "the map target was replaced at least twice";
   AteResult ate;
