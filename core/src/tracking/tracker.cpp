@@ -60,11 +60,12 @@ void Tracker::set_map_target(std::shared_ptr<const LocalMap> target, std::int64_
   map_target_ = std::move(target);
   map_ = *map_target_;
   map_.set_fuse(config_.local_map.fuse);  // the target's own setting (no fusing) is for its Gaussians
-  for (const Keyframe& kf : unmapped_)
-    add_to_bridge(transformed(kf.points_camera, kf.T_world_camera), kf.T_world_camera.translation().cast<float>());
+  for (const Keyframe& kf : unmapped_) insert_keyframe_points(kf.points_camera, kf.T_world_camera);
 }
 
-void Tracker::add_to_bridge(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world) {
+void Tracker::insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera) {
+  const GaussianPoints points_world = transformed(points_camera, T_world_camera);
+  const Eigen::Vector3f camera_position_world = T_world_camera.translation().cast<float>();
   if (!map_target_) {
     map_.insert(points_world, camera_position_world);
     return;
@@ -192,9 +193,7 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     // The keyframe's points are fused into the map (moving the points they re-observe), then
     // the keyframe re-observes the map's features; a stored point within the correspondence
     // gate of the keyframe's depth is the surface the keyframe sees.
-    const Eigen::Vector3f camera_position = T_world_camera.translation().cast<float>();
-    if (config_.target == TrackingTarget::gaussians) add_to_bridge(transformed(source, T_world_camera), camera_position);
-    else map_.insert(transformed(source, T_world_camera), camera_position);
+    insert_keyframe_points(source, T_world_camera);
     // On the map's Gaussians the target features are the distilled ones (eq. feat_dist's f_t):
     // keyframes refresh only their own points' features.
     if (config_.target == TrackingTarget::points && config_.refresh_features && latent != nullptr &&

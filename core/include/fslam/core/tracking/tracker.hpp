@@ -169,9 +169,9 @@ class Tracker {
   std::optional<Eigen::Isometry3d> T_last_;       // last tracked pose (world <- camera)
   std::optional<Eigen::Isometry3d> T_velocity_;   // T_{k-2}^-1 T_{k-1}
   std::deque<Keyframe> keyframes_;                // most recent last, bounded
-  // target = gaussians: adds a keyframe's world points to map_ where map_target_ has no point
-  // within min_point_distance (all of them before the first target).
-  void add_to_bridge(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world);
+  // Inserts a keyframe's points into map_: all of them into the point map, and with a map target
+  // (target = gaussians) only where the target has no point within min_point_distance.
+  void insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera);
 
   // target = gaussians: keyframes no map target contains yet, oldest first (their points are
   // added to each new target copy), and the newest target.
