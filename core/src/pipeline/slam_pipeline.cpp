@@ -170,7 +170,7 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
         map_target_taken_ = map_target_serial_;
       }
     }
-    if (target) tracker_.set_map_target(std::move(target), last_keyframe);
+    if (target) tracker_.set_map_target(*target, last_keyframe);
   }
   // The trajectory starts where the recording's ground truth does, when it has one.
   if (tracker_.keyframe_count() == 0 && frame.T_world_camera_gt) tracker_.set_initial_pose(*frame.T_world_camera_gt);
@@ -307,7 +307,7 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
     }
     weight_by_observations(views, config_.tracker.gicp.max_correspondence_distance, &points);
   }
-  target->insert(points, centre);
+  target->insert(points, centre, PointOrigin::map_gaussian);
   std::lock_guard<std::mutex> lock(mutex_);
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;

@@ -72,19 +72,4 @@ GaussianPoints transformed(const GaussianPoints& points, const Eigen::Isometry3d
   return out;
 }
 
-GaussianPoints selected(const GaussianPoints& points, const std::vector<std::size_t>& indices) {
-  GaussianPoints out;
-  out.feature_dim = points.feature_dim;
-  out.reserve(indices.size());
-  const std::size_t dim = points.has_features() ? static_cast<std::size_t>(points.feature_dim) : 0;
-  for (const std::size_t i : indices) {
-    out.means.push_back(points.means[i]);
-    out.covariances.push_back(points.covariances[i]);
-    if (points.has_opacities()) out.opacities.push_back(points.opacities[i]);
-    if (dim > 0) out.features.insert(out.features.end(), points.feature(i), points.feature(i) + dim);
-    if (points.has_feature_spread()) out.feature_spread.push_back(points.feature_spread[i]);
-  }
-  return out;
-}
-
 }  // namespace fslam::core

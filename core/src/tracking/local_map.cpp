@@ -216,8 +216,8 @@ const TargetPoint* LocalMap::nearest(const Eigen::Vector3f& query, float max_dis
   return found;
 }
 
-std::size_t LocalMap::insert(const GaussianPoints& points_world,
-                             const Eigen::Vector3f& camera_position_world) {
+std::size_t LocalMap::insert(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world,
+                             PointOrigin origin) {
   assert(points_world.covariances.size() == points_world.size());
   assert(points_world.opacities.empty() || points_world.opacities.size() == points_world.size());
   assert(!points_world.has_features() ||
@@ -258,6 +258,7 @@ std::size_t LocalMap::insert(const GaussianPoints& points_world,
     p.mean = mean;
     p.covariance = points_world.covariances[i];
     p.opacity = points_world.has_opacities() ? points_world.opacities[i] : 1.0f;
+    p.map_gaussian = origin == PointOrigin::map_gaussian;
     if (store_features) {
       assert(features_.size() <= std::numeric_limits<std::uint32_t>::max() - dim);
       p.feature_offset = static_cast<std::uint32_t>(features_.size());
@@ -279,7 +280,11 @@ bool LocalMap::fuse_into(const TargetPoint* stored, const Eigen::Vector3f& mean,
   const Eigen::Matrix3f info_stored = stored->covariance.inverse();
   const Eigen::Matrix3f info_new = covariance.inverse();
   const Eigen::Matrix3f fused_cov = (info_stored + info_new).inverse();
-  const Eigen::Vector3f fused_mean = fused_cov * (info_stored * stored->mean + info_new * mean);
+  // A map Gaussian counts the re-observation (as the mapper's observation weight will once the
+  // keyframe is mapped) but stays where the mapper put it.
+  const Eigen::Vector3f fused_mean =
+      stored->map_gaussian ? stored->mean
+                           : Eigen::Vector3f(fused_cov * (info_stored * stored->mean + info_new * mean));
   if (!fused_cov.allFinite() || !fused_mean.allFinite()) return false;
 
   const VoxelKey from_key = key_of(stored->mean);

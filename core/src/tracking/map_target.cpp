@@ -121,7 +121,7 @@ LocalMap localisation_target(const GaussianMap& map, const LocalMapConfig& local
   preprocess.depth_noise.enabled = false;
   LocalMap target(fixed);
   const Eigen::Vector3f origin = Eigen::Vector3f::Zero();
-  target.insert(map_target_points(map, origin, kUnbounded, config, preprocess), origin);
+  target.insert(map_target_points(map, origin, kUnbounded, config, preprocess), origin, PointOrigin::map_gaussian);
   return target;
 }
 

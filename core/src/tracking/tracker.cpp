@@ -55,30 +55,18 @@ const char* to_string(TrackingTarget target) {
   return target == TrackingTarget::gaussians ? "gaussians" : "points";
 }
 
-void Tracker::set_map_target(std::shared_ptr<const LocalMap> target, std::int64_t last_keyframe_id) {
+void Tracker::set_map_target(const LocalMap& target, std::int64_t last_keyframe_id) {
   while (!unmapped_.empty() && unmapped_.front().frame_id <= last_keyframe_id) unmapped_.pop_front();
-  map_target_ = std::move(target);
-  map_ = *map_target_;
+  map_ = target;
   map_.set_fuse(config_.local_map.fuse);  // the target's own setting (no fusing) is for its Gaussians
   for (const Keyframe& kf : unmapped_) insert_keyframe_points(kf.points_camera, kf.T_world_camera);
 }
 
 void Tracker::insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera) {
-  const GaussianPoints points_world = transformed(points_camera, T_world_camera);
-  const Eigen::Vector3f camera_position_world = T_world_camera.translation().cast<float>();
-  if (!map_target_) {
-    map_.insert(points_world, camera_position_world);
-    return;
-  }
-  // Where the map has the surface, its Gaussians are the target; a point the target lacks can
-  // meet only other bridge points within min_point_distance, so insert() fuses it with those
-  // (as the point map fuses re-observations).
-  std::vector<std::size_t> kept;
-  kept.reserve(points_world.size());
-  const float gap = config_.local_map.min_point_distance;
-  for (std::size_t i = 0; i < points_world.size(); ++i)
-    if (map_target_->nearest(points_world.means[i], gap) == nullptr) kept.push_back(i);
-  map_.insert(selected(points_world, kept), camera_position_world);
+  // Fused as the point map fuses re-observations (min_point_distance). On a map target, a point
+  // within it of a map Gaussian adds its information to the Gaussian, whose mean stays the map's;
+  // a point the target lacks is a bridge point, fused with the other bridge points there.
+  map_.insert(transformed(points_camera, T_world_camera), T_world_camera.translation().cast<float>());
 }
 
 const char* to_string(TrackingState state) {
@@ -107,7 +95,6 @@ void Tracker::reset() {
   relocalise_first_ = false;
   map_.clear();
   unmapped_.clear();
-  map_target_.reset();
   T_last_.reset();
   T_velocity_.reset();
   keyframes_.clear();

@@ -35,9 +35,6 @@ struct GaussianPoints {
   bool is_consistent(std::string* why = nullptr) const;
 };
 
-// The points at `indices` (each < size()), every array they carry included, in that order.
-GaussianPoints selected(const GaussianPoints& points, const std::vector<std::size_t>& indices);
-
 // Points and covariances moved by T (eq. rigid_transform: mu -> R mu + t, Sigma -> R Sigma R^T).
 GaussianPoints transformed(const GaussianPoints& points, const Eigen::Isometry3d& T_to_from);
 

@@ -35,7 +35,13 @@ struct TargetPoint {
   Eigen::Matrix3f covariance;
   float opacity = 1.0f;
   std::uint32_t feature_offset = 0;  // index into LocalMap::features(), valid if feature_dim > 0
+  // A map Gaussian (PointOrigin::map_gaussian): an observation fused into it adds its
+  // information (the covariance shrinks) but leaves the mean where the mapper put it.
+  bool map_gaussian = false;
 };
+
+// What LocalMap::insert stores: depth observations (the keyframes' points) or the map's Gaussians.
+enum class PointOrigin { observation, map_gaussian };
 
 class LocalMap {
  public:
@@ -44,11 +50,14 @@ class LocalMap {
   // Adds a keyframe's points (already in world coordinates) and drops voxels outside `radius`
   // of `camera_position_world`. Returns the number of points actually inserted. With `fuse`, a
   // point within min_point_distance of a stored one updates it instead (mean and covariance;
-  // opacity and feature row stay, refresh_point_features renews those).
+  // opacity and feature row stay, refresh_point_features renews those); a stored map Gaussian
+  // keeps its mean and takes only the observation's information.
+  // `origin` marks the inserted points (map Gaussians: the tracker's target of the map).
   // The map's feature_dim is set by the first insertion into an empty map; a later insertion
   // with another feature_dim (features present vs absent included) is a programming error that
   // is not fatal: the map drops every feature and tracks on geometry alone until it is empty.
-  std::size_t insert(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world);
+  std::size_t insert(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world,
+                     PointOrigin origin = PointOrigin::observation);
 
   // Nearest stored point to `query` (world) within `max_distance` metres; nullptr if none.
   // Searches the query's voxel and its 26 neighbours, so `max_distance` is clamped to
@@ -111,8 +120,9 @@ class LocalMap {
   Voxel& find_or_add_voxel(const VoxelKey& key);
   void rebuild_table(std::size_t min_voxels);
   void add_point(Voxel* voxel, const TargetPoint& point) const;
-  // Fuses the observation (mean, covariance) into `stored`; false when it could not (the fused
-  // mean lies in a full voxel or the covariances are singular), leaving `stored` as it was.
+  // Fuses the observation (mean, covariance) into `stored` (a map Gaussian: the covariance
+  // only); false when it could not (the fused mean lies in a full voxel or the covariances are
+  // singular), leaving `stored` as it was.
   bool fuse_into(const TargetPoint* stored, const Eigen::Vector3f& mean,
                  const Eigen::Matrix3f& covariance);
   void drop_voxels_outside(const Eigen::Vector3f& centre_world);

@@ -134,11 +134,12 @@ class Tracker {
   // With target = gaussians: the target built from a map version that contains every keyframe
   // up to `last_keyframe_id` (SlamPipeline builds it on the mapping thread). The tracker then
   // registers against a copy of it plus the keyframes it made since, which no version holds
-  // yet (the bridge between a keyframe and the map version that contains it). The bridge's
-  // points fill only what the target lacks: a point within min_point_distance of a target
-  // point is left out (the map's Gaussians are not fused with raw points), the rest are fused
-  // among themselves as the point map fuses. The tracker keeps `target` for that test.
-  void set_map_target(std::shared_ptr<const LocalMap> target, std::int64_t last_keyframe_id);
+  // yet (the bridge between a keyframe and the map version that contains it). The keyframes'
+  // points are fused into the copy as the point map fuses re-observations: one within
+  // min_point_distance of a map Gaussian (PointOrigin::map_gaussian) adds its information to
+  // the Gaussian and leaves its mean alone; the rest fill what the target lacks, fused among
+  // themselves.
+  void set_map_target(const LocalMap& target, std::int64_t last_keyframe_id);
   // Starts in an existing map (session modes localise and extend, issue 20): `map` is the target
   // (localisation_target of the map's Gaussians) and `keyframes` the relocaliser's; the first
   // frame, and every frame until one is found, relocalises with no prior pose. localise: the
@@ -169,14 +170,12 @@ class Tracker {
   std::optional<Eigen::Isometry3d> T_last_;       // last tracked pose (world <- camera)
   std::optional<Eigen::Isometry3d> T_velocity_;   // T_{k-2}^-1 T_{k-1}
   std::deque<Keyframe> keyframes_;                // most recent last, bounded
-  // Inserts a keyframe's points into map_: all of them into the point map, and with a map target
-  // (target = gaussians) only where the target has no point within min_point_distance.
+  // Inserts a keyframe's points into map_ (the point map, or the copy of a map target).
   void insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera);
 
   // target = gaussians: keyframes no map target contains yet, oldest first (their points are
-  // added to each new target copy), and the newest target.
+  // added to each new target copy).
   std::deque<Keyframe> unmapped_;
-  std::shared_ptr<const LocalMap> map_target_;
   Relocaliser relocaliser_;                       // every keyframe, described (bounded)
   bool localising_ = false;                       // start_in localise: map and keyframes fixed
   bool relocalise_first_ = false;                 // start_in: no pose until relocalised
