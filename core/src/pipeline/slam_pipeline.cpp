@@ -36,6 +36,11 @@ bool PipelineConfig::is_valid(std::string* why) const {
 
 namespace {
 
+// Map Gaussians that at least this many of the mapper's stored keyframes see hold their means in
+// the tracker's target copy; the others are fused with re-observations like observations
+// (docs/tracking.md "Re-observed Gaussians counted").
+constexpr int kMinViewsToHoldMean = 2;
+
 // The Gaussians' latent width is the autoencoder's (its weights file carries it), 0 without
 // features: never a second copy to keep equal by hand.
 PipelineConfig with_feature_width(PipelineConfig config, const LatentFeatures* features) {
@@ -298,6 +303,7 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   auto target = std::make_shared<LocalMap>(config);
   GaussianPoints points = map_target_points(mapper_.map(), centre, config.radius, config_.tracker.map_target,
                                             config_.tracker.preprocess);
+  std::vector<PointOrigin> origins(points.size(), PointOrigin::map_gaussian);
   if (config_.tracker.map_target.observation_weight) {
     std::vector<ObservingDepth> views;  // the stored keyframes' depth (pixels shared)
     for (const KeyframeImages& kf : *mapper_.published_keyframe_images()) {
@@ -305,9 +311,15 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
       views.push_back({kf.input_camera.scaled(static_cast<double>(kf.depth.cols) / kf.input_camera.width),
                        kf.T_world_camera, kf.depth});
     }
-    weight_by_observations(views, config_.tracker.gicp.max_correspondence_distance, &points);
+    const std::vector<int> seen =
+        weight_by_observations(views, config_.tracker.gicp.max_correspondence_distance, &points);
+    // A Gaussian fewer than two stored keyframes see was fitted to one view, and lately (the
+    // first mapping rounds move means most): the tracker's copy fuses it with re-observations
+    // as an observation. One that several views fitted holds where the mapper put it.
+    for (std::size_t k = 0; k < seen.size(); ++k)
+      if (seen[k] < kMinViewsToHoldMean) origins[k] = PointOrigin::observation;
   }
-  target->insert(points, centre, PointOrigin::map_gaussian);
+  target->insert(points, centre, origins);
   std::lock_guard<std::mutex> lock(mutex_);
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;

@@ -217,7 +217,8 @@ const TargetPoint* LocalMap::nearest(const Eigen::Vector3f& query, float max_dis
 }
 
 std::size_t LocalMap::insert(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world,
-                             PointOrigin origin) {
+                             const std::vector<PointOrigin>& origins) {
+  assert(origins.empty() || origins.size() == points_world.size());
   assert(points_world.covariances.size() == points_world.size());
   assert(points_world.opacities.empty() || points_world.opacities.size() == points_world.size());
   assert(!points_world.has_features() ||
@@ -258,7 +259,7 @@ std::size_t LocalMap::insert(const GaussianPoints& points_world, const Eigen::Ve
     p.mean = mean;
     p.covariance = points_world.covariances[i];
     p.opacity = points_world.has_opacities() ? points_world.opacities[i] : 1.0f;
-    p.map_gaussian = origin == PointOrigin::map_gaussian;
+    p.map_gaussian = !origins.empty() && origins[i] == PointOrigin::map_gaussian;
     if (store_features) {
       assert(features_.size() <= std::numeric_limits<std::uint32_t>::max() - dim);
       p.feature_offset = static_cast<std::uint32_t>(features_.size());

@@ -93,19 +93,20 @@ GaussianPoints map_target_points(const GaussianMap& map, const Eigen::Vector3f& 
   return out;
 }
 
-void weight_by_observations(const std::vector<ObservingDepth>& views, float max_depth_difference,
-                            GaussianPoints* points) {
+std::vector<int> weight_by_observations(const std::vector<ObservingDepth>& views, float max_depth_difference,
+                                        GaussianPoints* points) {
   std::vector<Eigen::Isometry3d> T_camera_world;
   T_camera_world.reserve(views.size());
   for (const ObservingDepth& view : views) T_camera_world.push_back(view.T_world_camera.inverse());
+  std::vector<int> seen(points->size(), 0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, points->size()), [&](const auto& r) {
     for (std::size_t k = r.begin(); k != r.end(); ++k) {
-      int seen = 0;
       for (std::size_t v = 0; v < views.size(); ++v)
-        seen += depth_sees(views[v].camera, views[v].depth, T_camera_world[v], points->means[k], max_depth_difference);
-      if (seen > 1) points->covariances[k] /= static_cast<float>(seen);
+        seen[k] += depth_sees(views[v].camera, views[v].depth, T_camera_world[v], points->means[k], max_depth_difference);
+      if (seen[k] > 1) points->covariances[k] /= static_cast<float>(seen[k]);
     }
   });
+  return seen;
 }
 
 namespace {
@@ -121,7 +122,8 @@ LocalMap localisation_target(const GaussianMap& map, const LocalMapConfig& local
   preprocess.depth_noise.enabled = false;
   LocalMap target(fixed);
   const Eigen::Vector3f origin = Eigen::Vector3f::Zero();
-  target.insert(map_target_points(map, origin, kUnbounded, config, preprocess), origin, PointOrigin::map_gaussian);
+  const GaussianPoints points = map_target_points(map, origin, kUnbounded, config, preprocess);
+  target.insert(points, origin, std::vector<PointOrigin>(points.size(), PointOrigin::map_gaussian));
   return target;
 }
 

@@ -358,6 +358,19 @@ TEST(LocalMap, ARepeatedObservationIsFusedAsTheProductOfTheGaussians) {
   ASSERT_EQ(first.size(), 1u);
   EXPECT_EQ(first.points().means[0], a);
   EXPECT_EQ(first.points().covariances[0], cov_a);
+
+  // Stored as a map Gaussian that holds its mean: the same product's covariance, the mean
+  // where it was; inserted as an observation (no origins, or PointOrigin::observation), fused.
+  LocalMap held(LocalMapConfig{});
+  held.insert(one_point(a, cov_a), Eigen::Vector3f::Zero(), {PointOrigin::map_gaussian});
+  held.insert(one_point(b, cov_b), Eigen::Vector3f::Zero());
+  ASSERT_EQ(held.size(), 1u);
+  EXPECT_EQ(held.points().means[0], a);
+  EXPECT_LT((held.points().covariances[0].cast<double>() - cov).norm(), 1e-3 * cov.norm());
+  LocalMap moved(LocalMapConfig{});
+  moved.insert(one_point(a, cov_a), Eigen::Vector3f::Zero(), {PointOrigin::observation});
+  moved.insert(one_point(b, cov_b), Eigen::Vector3f::Zero());
+  EXPECT_LT((moved.points().means[0].cast<double>() - mean).norm(), 1e-6);  // metres
 }
 
 TEST(LocalMap, AFusedPointThatCrossesIntoTheNextVoxelMovesThere) {

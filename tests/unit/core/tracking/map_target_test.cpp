@@ -114,7 +114,7 @@ TEST(MapTarget, ObservationWeightCountsTheViewsWhoseDepthSeesThePoint) {
                   {2.0f, 0.0f, 2.0f}};   // outside both images
   points.covariances.assign(points.means.size(), cov);
   points.opacities.assign(points.means.size(), 1.0f);
-  weight_by_observations({a, b}, 0.03f, &points);
+  EXPECT_EQ(weight_by_observations({a, b}, 0.03f, &points), (std::vector<int>{2, 1, 0, 0}));
   EXPECT_TRUE(points.covariances[0].isApprox(cov / 2.0f));
   EXPECT_TRUE(points.covariances[1].isApprox(cov));
   EXPECT_TRUE(points.covariances[2].isApprox(cov));
@@ -199,7 +199,8 @@ TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
   LocalMapConfig local = config.local_map;
   local.fuse = false;
   LocalMap target(local);
-  target.insert(half, trajectory[0].T_world_camera.translation().cast<float>(), PointOrigin::map_gaussian);
+  target.insert(half, trajectory[0].T_world_camera.translation().cast<float>(),
+                std::vector<PointOrigin>(half.size(), PointOrigin::map_gaussian));
   const GaussianPoints target_points = target.points();
   tracker.set_map_target(target, 6);  // neither keyframe is in this version: both bridged
 
@@ -285,8 +286,8 @@ TEST(MapTarget, TrackerFollowsTheRoomAgainstAMapPublishedOneKeyframeLate) {
       local.fuse = false;
       LocalMap target(local);
       const Eigen::Vector3f centre = result.T_world_camera.translation().cast<float>();
-      target.insert(map_target_points(map, centre, local.radius, config.map_target, config.preprocess), centre,
-                    PointOrigin::map_gaussian);
+      const GaussianPoints discs = map_target_points(map, centre, local.radius, config.map_target, config.preprocess);
+      target.insert(discs, centre, std::vector<PointOrigin>(discs.size(), PointOrigin::map_gaussian));
       tracker.set_map_target(target, id);
     }
     pending.emplace_back(static_cast<std::int64_t>(i), transformed(source.points, result.T_world_camera));

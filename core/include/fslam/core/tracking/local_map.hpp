@@ -35,12 +35,13 @@ struct TargetPoint {
   Eigen::Matrix3f covariance;
   float opacity = 1.0f;
   std::uint32_t feature_offset = 0;  // index into LocalMap::features(), valid if feature_dim > 0
-  // A map Gaussian (PointOrigin::map_gaussian): an observation fused into it adds its
-  // information (the covariance shrinks) but leaves the mean where the mapper put it.
+  // A map Gaussian held where the mapper put it (PointOrigin::map_gaussian): an observation
+  // fused into it adds its information (the covariance shrinks) but leaves the mean alone.
   bool map_gaussian = false;
 };
 
-// What LocalMap::insert stores: depth observations (the keyframes' points) or the map's Gaussians.
+// What a point LocalMap::insert stores is: a depth observation (a keyframe's point, or a map
+// Gaussian that is to be fused as one) or a map Gaussian whose mean stays.
 enum class PointOrigin { observation, map_gaussian };
 
 class LocalMap {
@@ -51,13 +52,13 @@ class LocalMap {
   // of `camera_position_world`. Returns the number of points actually inserted. With `fuse`, a
   // point within min_point_distance of a stored one updates it instead (mean and covariance;
   // opacity and feature row stay, refresh_point_features renews those); a stored map Gaussian
-  // keeps its mean and takes only the observation's information.
-  // `origin` marks the inserted points (map Gaussians: the tracker's target of the map).
+  // keeps its mean and takes only the observation's information. `origins`: one per point
+  // (empty: all observations).
   // The map's feature_dim is set by the first insertion into an empty map; a later insertion
   // with another feature_dim (features present vs absent included) is a programming error that
   // is not fatal: the map drops every feature and tracks on geometry alone until it is empty.
   std::size_t insert(const GaussianPoints& points_world, const Eigen::Vector3f& camera_position_world,
-                     PointOrigin origin = PointOrigin::observation);
+                     const std::vector<PointOrigin>& origins = {});
 
   // Nearest stored point to `query` (world) within `max_distance` metres; nullptr if none.
   // Searches the query's voxel and its 26 neighbours, so `max_distance` is clamped to

@@ -55,7 +55,8 @@ struct ObservingDepth {
 // the covariance), so a surface many keyframes saw weighs more in GICP and holds the frame to what
 // was mapped before; a map Gaussian's target covariance would otherwise be one observation's
 // however many keyframes fitted it (docs/tracking.md "Why the Gaussian target loses").
-void weight_by_observations(const std::vector<ObservingDepth>& views, float max_depth_difference,
+// Returns each point's count of views that see it (0 for none).
+std::vector<int> weight_by_observations(const std::vector<ObservingDepth>& views, float max_depth_difference,
                             GaussianPoints* points);
 
 // The Gaussians of `map` within `radius` of `centre_world` as GICP target points, most opaque
