@@ -37,7 +37,9 @@ struct MapTargetConfig {
   bool wait_for_mapper = false;
   // Each target covariance divided by the number of the mapper's stored keyframes whose depth
   // sees the Gaussian (weight_by_observations): what the point map's fusion gives re-observed
-  // surfaces. Off: every Gaussian weighs as one observation (the paper's eq. gicp_sets).
+  // surfaces. The count also decides which Gaussians hold their means against the bridge's
+  // re-observations in the tracker's copy (two views or more; SlamPipeline::publish_map_target).
+  // Off: every Gaussian weighs as one observation (the paper's eq. gicp_sets) and every one holds.
   bool observation_weight = true;
   bool is_valid(std::string* why = nullptr) const;
 };
