@@ -64,8 +64,8 @@ void Tracker::set_map_target(const LocalMap& target, std::int64_t last_keyframe_
 
 void Tracker::insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera) {
   // Fused as the point map fuses re-observations (min_point_distance). On a map target, a point
-  // within it of a map Gaussian adds its information to the Gaussian, whose mean stays the map's;
-  // a point the target lacks is a bridge point, fused with the other bridge points there.
+  // within it of a target point is fused into that (a held map Gaussian keeps its mean); a point
+  // the target lacks is a bridge point, fused with the other bridge points there.
   map_.insert(transformed(points_camera, T_world_camera), T_world_camera.translation().cast<float>());
 }
 

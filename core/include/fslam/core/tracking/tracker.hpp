@@ -135,10 +135,10 @@ class Tracker {
   // up to `last_keyframe_id` (SlamPipeline builds it on the mapping thread). The tracker then
   // registers against a copy of it plus the keyframes it made since, which no version holds
   // yet (the bridge between a keyframe and the map version that contains it). The keyframes'
-  // points are fused into the copy as the point map fuses re-observations: one within
-  // min_point_distance of a map Gaussian (PointOrigin::map_gaussian) adds its information to
-  // the Gaussian and leaves its mean alone; the rest fill what the target lacks, fused among
-  // themselves.
+  // points are fused into the copy as the point map fuses re-observations (LocalMap::insert):
+  // one within min_point_distance of a target point is fused into it (a held map Gaussian,
+  // PointOrigin::map_gaussian, takes its information and keeps its mean); the rest fill what
+  // the target lacks, fused among themselves.
   void set_map_target(const LocalMap& target, std::int64_t last_keyframe_id);
   // Starts in an existing map (session modes localise and extend, issue 20): `map` is the target
   // (localisation_target of the map's Gaussians) and `keyframes` the relocaliser's; the first
