@@ -194,6 +194,7 @@ nlohmann::json metrics_json(const RunArgs& args, const core::Dataset& dataset,
                        {"tracking_wall_s", t.wall_s},
                        {"refine_s", run.refine_s},
                        {"tracking_per_frame", timing_json(t.track_ms)},
+                       {"tracking_cpu_per_frame", timing_json(t.track_cpu_ms)},
                        {"tracking_features_per_frame", timing_json(t.features_ms)},
                        {"mapping_per_keyframe", timing_json(mapping.keyframe_ms)},
                        {"features_per_keyframe", timing_json(mapping.features_ms)}};

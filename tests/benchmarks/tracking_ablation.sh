@@ -115,7 +115,7 @@ for stretch in "${stretch_list[@]}"; do ensure_stretch "$(stretch_name "${stretc
 SUMMARY="${OUT}/summary.txt"
 {
   echo "# $(date -u +%FT%TZ) commit $(git -C "${REPO}" rev-parse --short HEAD)$(git -C "${REPO}" diff --quiet || echo +dirty) threads ${THREADS} host $(hostname)"
-  echo "| stretch | row | ATE cm | tracking ms p50 | held-out PSNR dB | frames/s | Gaussians | decoded error pretrained -> online | feature similarity p50 |"
+  echo "| stretch | row | ATE cm | tracking ms p50 (wall / thread CPU) | held-out PSNR dB | frames/s | Gaussians | decoded error pretrained -> online | feature similarity p50 |"
   echo "|---|---|---|---|---|---|---|---|---|"
 } | tee "${SUMMARY}"
 IFS=',' read -r -a row_list <<<"${ROWS}"
@@ -134,6 +134,7 @@ import json, sys
 m = json.load(open(sys.argv[1]))
 ate = m.get("ate", {}).get("rmse_m")
 track = m["timing"]["tracking_per_frame"].get("median_ms", m["timing"]["tracking_per_frame"].get("median"))
+cpu = m["timing"].get("tracking_cpu_per_frame", {}).get("median_ms")
 psnr = m["held_out"].get("psnr_db", m["held_out"].get("psnr"))
 fps = m["timing"]["frames_per_second"]
 dec = m.get("decoded_features")
@@ -141,7 +142,7 @@ dec_text = f"{dec['held_out_error_pretrained']:.4f} -> {dec['held_out_error_onli
 fmt = lambda v, f: (f % v) if isinstance(v, (int, float)) else "-"
 similarity = m.get("registration", {}).get("feature_weight", {}).get("median")
 print(f"| {sys.argv[2]} | {sys.argv[3]} | {fmt(ate * 100 if ate is not None else None, '%.2f')} | "
-      f"{fmt(track, '%.1f')} | {fmt(psnr, '%.2f')} | {fps:.2f} | {m['map']['gaussians']} | {dec_text} | {fmt(similarity, '%.3f')} |")
+      f"{fmt(track, '%.1f')} / {fmt(cpu, '%.1f')} | {fmt(psnr, '%.2f')} | {fps:.2f} | {m['map']['gaussians']} | {dec_text} | {fmt(similarity, '%.3f')} |")
 PY
   done
 done

@@ -117,6 +117,16 @@ TEST_F(SynthPipeline, TrackSequenceStartsAtGroundTruthAndMatchesTheCommand) {
   ASSERT_EQ(t.trajectory.size(), 20u);
   EXPECT_EQ(t.timings.size(), 19u);  // the first frame only initialises
   EXPECT_EQ(t.lost, 0u);
+  // The tracking thread's CPU time per frame: some of it, never more than the wall time (one
+  // thread; tracker.parallel is off), and the sum is the registration's real work.
+  ASSERT_EQ(t.track_cpu_ms.size(), t.track_ms.size());
+  double cpu_sum = 0.0;
+  for (std::size_t i = 0; i < t.track_ms.size(); ++i) {
+    EXPECT_GE(t.track_cpu_ms[i], 0.0);
+    EXPECT_LE(t.track_cpu_ms[i], t.track_ms[i] + 0.1) << "frame " << i + 1;  // ms; clock granularity
+    cpu_sum += t.track_cpu_ms[i];
+  }
+  EXPECT_GT(cpu_sum, 1.0);  // ms over 19 preprocessings and registrations
   core::RgbdFrame first;
   ASSERT_TRUE(dataset->load(0, &first, &why)) << why;
   ASSERT_TRUE(first.T_world_camera_gt);

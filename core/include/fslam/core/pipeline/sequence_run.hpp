@@ -42,6 +42,10 @@ struct SequenceTracking {
   std::vector<Eigen::Isometry3d> map_from_odom;
   std::vector<Eigen::Isometry3d> mapping_poses;  // with ground_truth_poses: where it was mapped
   std::vector<double> track_ms;             // wall time per frame after the first, ms
+  // The tracking thread's CPU time over the same span, ms: track_ms less the time it waited for a
+  // core (mapping's threads beside it) or a lock. Work it hands to other threads (OpenCV's pool,
+  // tracker.parallel) is not counted.
+  std::vector<double> track_cpu_ms;
   std::vector<double> features_ms;          // the latent of frames after the first (when > 0), ms
   std::vector<TrackingTimings> timings;     // per frame after the first (the first initialises)
   // Registration quality per frame after the first (GicpResult): inlier ratio, RMS residual in
