@@ -9,9 +9,9 @@ usage() {
 Usage: tests/benchmarks/tracking_ablation.sh [options]
 
 Runs `fslam run` (mapping on, as fast as it can, --threads N) once per row and stretch and prints
-one table: ATE RMSE (cm), median tracking ms per frame, held-out PSNR (dB), frames/s, map size,
-the held-out decoded-feature error of the heads before / after online LoRA where L_feat is
-decoded, and the median over frames of the registration's mean feature similarity (eq. feat_dist
+one table: ATE RMSE (cm), median tracking ms per frame (wall / the tracking thread's CPU),
+held-out PSNR (dB), frames/s, map size, the held-out decoded-feature error of the heads before /
+after online LoRA where L_feat is decoded, and the median over frames of the registration's mean feature similarity (eq. feat_dist
 at the solution; 1: the frame's features equal their matched targets'). Rows (--rows picks some, comma-separated):
   points           point map target, features off (the default without weights)
   points-feat      point map target, features on (the default with weights)
