@@ -5,7 +5,6 @@
 // Usage: fslam_bench_autoencoder [--pixels 2000,19200] [--repeats 50] [--latent 16]
 //        [--encoder-hidden 64] [--head-hidden 32] [--activation gelu|relu]
 #include <algorithm>
-#include <ctime>
 #include <cstdio>
 #include <functional>
 #include <random>
@@ -15,18 +14,12 @@
 #include <CLI/CLI.hpp>
 
 #include "fslam/core/compute/product_blocking.hpp"
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/features/feature_autoencoder.hpp"
 
 namespace {
 
 using namespace fslam::core;
-
-// CPU time of this thread: on shared machines wall time also counts other processes' turns.
-double thread_cpu_ms() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
 
 double median_ms(int repeats, const std::function<void()>& run) {
   std::vector<double> ms;

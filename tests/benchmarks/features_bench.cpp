@@ -13,7 +13,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <ctime>
 #include <map>
 #include <regex>
 #include <string>
@@ -24,6 +23,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/features/feature_encoder.hpp"
 #include "fslam/core/synth/synthetic_scene.hpp"
 
@@ -31,12 +31,6 @@ namespace {
 
 using namespace fslam::core;
 using Clock = std::chrono::steady_clock;
-
-double thread_cpu_ms() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
 
 double median(std::vector<double> v) {
   if (v.empty()) return NAN;

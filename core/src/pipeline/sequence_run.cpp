@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <ctime>
 #include <future>
 #include <memory>
 #include <optional>
@@ -11,6 +10,7 @@
 #include <thread>
 #include <utility>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/error.hpp"
 
 namespace fslam::core {
@@ -20,13 +20,6 @@ using Clock = std::chrono::steady_clock;
 
 double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
-}
-
-// CPU time the calling thread has used, ms (Linux: per-thread clock).
-double thread_cpu_ms() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
 }
 
 // Frames of a dataset in order, each decoded on a helper thread while the one before it is

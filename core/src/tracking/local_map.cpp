@@ -259,7 +259,7 @@ std::size_t LocalMap::insert(const GaussianPoints& points_world, const Eigen::Ve
     p.mean = mean;
     p.covariance = points_world.covariances[i];
     p.opacity = points_world.has_opacities() ? points_world.opacities[i] : 1.0f;
-    p.map_gaussian = !origins.empty() && origins[i] == PointOrigin::map_gaussian;
+    p.origin = origins.empty() ? PointOrigin::observation : origins[i];
     if (store_features) {
       assert(features_.size() <= std::numeric_limits<std::uint32_t>::max() - dim);
       p.feature_offset = static_cast<std::uint32_t>(features_.size());
@@ -284,7 +284,7 @@ bool LocalMap::fuse_into(const TargetPoint* stored, const Eigen::Vector3f& mean,
   // A map Gaussian counts the re-observation (as the mapper's observation weight will once the
   // keyframe is mapped) but stays where the mapper put it.
   const Eigen::Vector3f fused_mean =
-      stored->map_gaussian ? stored->mean
+      stored->origin == PointOrigin::map_gaussian ? stored->mean
                            : Eigen::Vector3f(fused_cov * (info_stored * stored->mean + info_new * mean));
   if (!fused_cov.allFinite() || !fused_mean.allFinite()) return false;
 

@@ -122,8 +122,7 @@ LocalMap localisation_target(const GaussianMap& map, const LocalMapConfig& local
   preprocess.depth_noise.enabled = false;
   LocalMap target(fixed);
   const Eigen::Vector3f origin = Eigen::Vector3f::Zero();
-  const GaussianPoints points = map_target_points(map, origin, kUnbounded, config, preprocess);
-  target.insert(points, origin, std::vector<PointOrigin>(points.size(), PointOrigin::map_gaussian));
+  target.insert(map_target_points(map, origin, kUnbounded, config, preprocess), origin);
   return target;
 }
 

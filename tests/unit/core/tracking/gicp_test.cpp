@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
-#include <ctime>
 #include <iostream>
 #include <random>
 #include <sstream>
@@ -16,6 +15,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/geometry/se3.hpp"
 #include "fslam/core/tracking/gicp_impl.hpp"
 #include "fslam/core/tracking/kdtree_target.hpp"
@@ -866,12 +866,6 @@ void sort_spatially(GaussianPoints* points) {
     sorted.covariances.push_back(points->covariances[i]);
   }
   *points = sorted;
-}
-
-double thread_cpu_ms() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return 1e3 * static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_nsec);
 }
 
 double median(std::vector<double> v) {

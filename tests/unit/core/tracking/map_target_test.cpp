@@ -212,7 +212,7 @@ TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
   for (std::size_t i = 0; i < target_points.size(); ++i) {
     const TargetPoint* p = bridged.nearest(target_points.means[i], 1e-5f);
     ASSERT_NE(p, nullptr) << "target point " << i << " moved";
-    EXPECT_TRUE(p->map_gaussian) << "target point " << i;
+    EXPECT_EQ(p->origin, PointOrigin::map_gaussian) << "target point " << i;
     const float before = target_points.covariances[i].trace(), after = p->covariance.trace();
     EXPECT_LE(after, before * (1.0f + 1e-4f)) << "target point " << i;
     reobserved += after < 0.5f * before;
@@ -232,7 +232,7 @@ TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
   for (std::size_t i = 0; i < all.size(); ++i) {
     if (target.nearest(all.means[i], 1e-5f) != nullptr) continue;  // a target point
     ++added;
-    EXPECT_EQ(bridged.nearest(all.means[i], 1e-5f)->map_gaussian, false) << "bridge point " << i;
+    EXPECT_EQ(bridged.nearest(all.means[i], 1e-5f)->origin, PointOrigin::observation) << "bridge point " << i;
     EXPECT_EQ(target.nearest(all.means[i], 0.5f * local.min_point_distance), nullptr)
         << "bridge point " << i << " on a target point";
     fused += !is_raw(all.means[i]);

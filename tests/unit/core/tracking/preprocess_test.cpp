@@ -1,5 +1,3 @@
-#include <time.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -14,6 +12,7 @@
 #include <Eigen/Eigenvalues>
 #include <opencv2/core.hpp>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/math/unproject.hpp"
 #include "fslam/core/tracking/gaussian_points.hpp"
@@ -531,13 +530,6 @@ TEST(Preprocess, RedkitchenFrame) {
   std::cout << "redkitchen frame 100: " << stats.valid_pixels << " valid pixels, "
             << stats.lattice_points << " lattice points, " << stats.output_points
             << " Gaussian points, " << good << " well conditioned\n";
-}
-
-// CPU time of this thread, milliseconds: on a shared 2-core machine wall time also counts waits.
-double thread_cpu_ms() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
 // Timing: the 600 redkitchen frames at the default config, one thread. Opt-in:

@@ -29,20 +29,19 @@ struct LocalMapConfig {
   bool is_valid(std::string* why = nullptr) const;
 };
 
+// What a point LocalMap::insert stores is: a depth observation (a keyframe's point, or a map
+// Gaussian that is to be fused as one) or a map Gaussian held where the mapper put it: an
+// observation fused into one adds its information (the covariance shrinks) but leaves the mean.
+enum class PointOrigin : std::uint8_t { observation, map_gaussian };
+
 // A stored target point: mean, covariance, opacity and feature row, all in world coordinates.
 struct TargetPoint {
   Eigen::Vector3f mean;
   Eigen::Matrix3f covariance;
   float opacity = 1.0f;
   std::uint32_t feature_offset = 0;  // index into LocalMap::features(), valid if feature_dim > 0
-  // A map Gaussian held where the mapper put it (PointOrigin::map_gaussian): an observation
-  // fused into it adds its information (the covariance shrinks) but leaves the mean alone.
-  bool map_gaussian = false;
+  PointOrigin origin = PointOrigin::observation;
 };
-
-// What a point LocalMap::insert stores is: a depth observation (a keyframe's point, or a map
-// Gaussian that is to be fused as one) or a map Gaussian whose mean stays.
-enum class PointOrigin { observation, map_gaussian };
 
 class LocalMap {
  public:
