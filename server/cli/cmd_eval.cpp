@@ -1,16 +1,22 @@
 // `fslam eval`: ATE and RPE of an estimated trajectory against ground truth (docs/evaluation.md).
 #include <cmath>
 #include <cstdio>
+#include <algorithm>
 #include <fstream>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "dataset_args.hpp"
+#include "fslam/core/dataset/dataset.hpp"
 #include "fslam/core/eval/ate.hpp"
+#include "fslam/core/eval/depth_agreement.hpp"
 #include "fslam/core/eval/rpe.hpp"
 #include "fslam/core/eval/trajectory_plot.hpp"
 #include "fslam/core/io/image_io.hpp"
@@ -28,6 +34,8 @@ struct EvalOptions {
   double max_difference = 0.02;  // seconds
   double rpe_delta = 1.0;        // frames or seconds
   std::string rpe_unit = "frames";
+  DatasetArgs dataset;  // set: score each step's depth agreement (core/eval/depth_agreement.hpp)
+  int depth_delta = 1;  // frames between the two depths of a step
 };
 
 nlohmann::json stats_json(const core::ErrorStats& s) {
@@ -41,6 +49,110 @@ std::string row(const char* name, std::size_t count, double rmse, double mean, d
   std::snprintf(buffer, sizeof(buffer), "%-16s %7zu %10.6f %10.6f %10.6f %10.6f %10.6f %10.6f\n",
                 name, count, rmse, mean, median, std, min, max);
   return buffer;
+}
+
+// Per-step median |dz| of one side, in metres.
+std::vector<double> step_medians(const std::vector<core::DepthAgreementStep>& steps,
+                                 bool ground_truth) {
+  std::vector<double> medians;
+  for (const auto& s : steps)
+    medians.push_back((ground_truth ? s.ground_truth : s.estimate).median_abs_m);
+  return medians;
+}
+
+// The `count` steps where `worse` exceeds `better` the most, as printed rows and JSON.
+nlohmann::json worst_steps(std::vector<core::DepthAgreementStep> steps, bool ground_truth,
+                           std::size_t count) {
+  const auto margin = [&](const core::DepthAgreementStep& s) {
+    const double d = s.ground_truth.median_abs_m - s.estimate.median_abs_m;
+    return ground_truth ? d : -d;
+  };
+  std::sort(steps.begin(), steps.end(),
+            [&](const auto& a, const auto& b) { return margin(a) > margin(b); });
+  steps.resize(std::min(count, steps.size()));
+  nlohmann::json rows = nlohmann::json::array();
+  for (const auto& s : steps) {
+    std::printf("  %6lld -> %-6lld %8.2f %8.2f %9.3f %9.3f\n", static_cast<long long>(s.frame_a),
+                static_cast<long long>(s.frame_b), 1e3 * s.ground_truth.median_abs_m,
+                1e3 * s.estimate.median_abs_m, s.ground_truth.inlier_fraction,
+                s.estimate.inlier_fraction);
+    rows.push_back({{"frame_a", s.frame_a},
+                    {"frame_b", s.frame_b},
+                    {"ground_truth_median_m", s.ground_truth.median_abs_m},
+                    {"estimate_median_m", s.estimate.median_abs_m},
+                    {"ground_truth_inliers", s.ground_truth.inlier_fraction},
+                    {"estimate_inliers", s.estimate.inlier_fraction}});
+  }
+  return rows;
+}
+
+// Scores every step of both trajectories on the dataset's depth and prints the summary and the
+// steps where each side disagrees most with the other; false with `why` on failure.
+bool depth_agreement_report(const EvalOptions& o, const core::Trajectory& gt,
+                            const core::Trajectory& est, nlohmann::json* out, std::string* why) {
+  core::DatasetOptions options;
+  const auto dataset = open_dataset(o.dataset, &options, why);
+  if (!dataset) return false;
+  if (o.depth_delta < 1) {
+    *why = "--depth-delta must be >= 1";
+    return false;
+  }
+  core::AssociationConfig association;
+  association.max_difference = o.max_difference;
+  const core::DepthAgreementConfig config;
+  std::vector<core::DepthAgreementStep> steps;
+  std::optional<Progress> progress;
+  if (!core::depth_agreement_steps(*dataset, gt, est, association,
+                                   static_cast<std::size_t>(o.depth_delta), config, &steps, why,
+                                   [&](std::size_t done, std::size_t total) {
+                                     if (!progress) progress.emplace("depth agreement", total);
+                                     progress->update(done);
+                                   }))
+    return false;
+  if (progress) progress->finish();
+
+  const auto gt_stats = core::summarize_errors(step_medians(steps, true));
+  const auto est_stats = core::summarize_errors(step_medians(steps, false));
+  const std::size_t estimate_better = static_cast<std::size_t>(
+      std::count_if(steps.begin(), steps.end(), [](const auto& s) {
+        return s.estimate.median_abs_m < s.ground_truth.median_abs_m;
+      }));
+  std::printf("\ndepth agreement: %zu steps of %d frame(s) on %s; per step the median |dz| "
+              "between frame a's depth moved into frame b and b's depth [m]\n",
+              steps.size(), o.depth_delta, dataset->root().c_str());
+  std::printf("%-16s %7s %10s %10s %10s %10s %10s %10s\n", "pose", "steps", "rmse", "mean",
+              "median", "std", "min", "max");
+  std::cout << row("ground truth", gt_stats.count, gt_stats.rmse, gt_stats.mean, gt_stats.median,
+                   gt_stats.std, gt_stats.min, gt_stats.max)
+            << row("estimate", est_stats.count, est_stats.rmse, est_stats.mean, est_stats.median,
+                   est_stats.std, est_stats.min, est_stats.max);
+  std::printf("the estimate agrees better on %zu of %zu steps\n", estimate_better, steps.size());
+  constexpr std::size_t kShown = 5;
+  std::printf("\nsteps where the ground truth disagrees most with the depth, against the "
+              "estimate\n  %6s    %-6s %8s %8s %9s %9s\n", "frame", "frame", "gt mm", "est mm",
+              "gt inl", "est inl");
+  nlohmann::json worst_gt = worst_steps(steps, true, kShown);
+  std::printf("steps where the estimate disagrees most, against the ground truth\n");
+  nlohmann::json worst_est = worst_steps(steps, false, kShown);
+  nlohmann::json frame_a, frame_b;
+  for (const auto& s : steps) {
+    frame_a.push_back(s.frame_a);
+    frame_b.push_back(s.frame_b);
+  }
+  *out = {{"delta_frames", o.depth_delta},
+          {"steps", steps.size()},
+          {"inlier_distance_m", config.inlier_distance},
+          {"ground_truth_median_m", stats_json(gt_stats)},
+          {"estimate_median_m", stats_json(est_stats)},
+          {"estimate_better_steps", estimate_better},
+          {"worst_ground_truth_steps", worst_gt},
+          {"worst_estimate_steps", worst_est},
+          {"per_step",
+           {{"frame_a", frame_a},
+            {"frame_b", frame_b},
+            {"ground_truth_median_m", step_medians(steps, true)},
+            {"estimate_median_m", step_medians(steps, false)}}}};
+  return true;
 }
 
 int run_eval(const EvalOptions& o) {
@@ -76,6 +188,11 @@ int run_eval(const EvalOptions& o) {
   const auto& r = rpe.rotation;
   std::cout << row("RPE trans [m]", t.count, t.rmse, t.mean, t.median, t.std, t.min, t.max)
             << row("RPE rot [deg]", r.count, r.rmse, r.mean, r.median, r.std, r.min, r.max);
+  std::cout << std::flush;
+
+  nlohmann::json depth;
+  if (!o.dataset.path.empty() && !depth_agreement_report(o, gt, est, &depth, &why))
+    return fail(why);
 
   if (!o.json_path.empty()) {
     nlohmann::json T = nlohmann::json::array();
@@ -84,7 +201,7 @@ int run_eval(const EvalOptions& o) {
       for (int j = 0; j < 4; ++j) matrix_row.push_back(ate.T_gt_est.matrix()(i, j));
       T.push_back(matrix_row);
     }
-    const nlohmann::json out = {
+    nlohmann::json out = {
         {"ground_truth", o.gt_path},
         {"estimate", o.est_path},
         {"association", {{"max_difference_s", o.max_difference}, {"offset_s", 0.0}}},
@@ -106,6 +223,7 @@ int run_eval(const EvalOptions& o) {
           {"pairs", rpe.pairs},
           {"translation_m", stats_json(rpe.translation)},
           {"rotation_deg", stats_json(rpe.rotation)}}}};
+    if (!depth.is_null()) out["depth_agreement"] = depth;
     std::ofstream file(o.json_path);
     if (!file) return fail(o.json_path + ": cannot open for writing");
     file << out.dump(2) << "\n";
@@ -154,6 +272,12 @@ void add_eval_command(CLI::App& root, CommandList* commands) {
   app->add_option("--rpe-unit", o->rpe_unit, "RPE spacing unit: frames or seconds")
       ->capture_default_str()
       ->check(CLI::IsMember({"frames", "seconds"}));
+  // Optional: the recording both trajectories belong to, for the depth agreement of each step.
+  add_dataset_options(app, &o->dataset, false);
+  app->add_option("--depth-delta", o->depth_delta,
+                  "With --dataset: frames between the two depths of a scored step")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   commands->push_back({app, [o] { return run_eval(*o); }});
 }
 

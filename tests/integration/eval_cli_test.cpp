@@ -4,6 +4,7 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "cli_runner.hpp"
 
@@ -48,6 +49,56 @@ TEST(EvalCli, ErrorsGoToStderrWithNonZeroExit) {
   EXPECT_FALSE(err.empty());
   ASSERT_EQ(run_command(fslam_bin() + " eval --help", &out, &err), 0) << err;
   EXPECT_NE(out.find("--rpe-unit"), std::string::npos) << out;
+}
+
+// --dataset scores each step's depth agreement: an estimate that jumps 4 cm along world z at one
+// frame of a synthetic room disagrees with the depth at that step and only there.
+TEST(EvalCli, DepthAgreementFindsTheStepWhereAnEstimateJumps) {
+  const auto dir = test::fresh_temp_dir("eval_depth");
+  const std::string room = (dir / "room").string();
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + room + " --frames 12 --seed 3", &out, &err), 0)
+      << err;
+  std::ifstream gt_file(room + "/groundtruth.txt");
+  std::ofstream est_file(dir / "est.txt");
+  std::string line;
+  int pose = 0;
+  while (std::getline(gt_file, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    double v[8];
+    for (double& x : v) fields >> x;
+    if (pose++ >= 6) v[3] += 0.04;  // frames 6.. moved 4 cm along world z
+    est_file.precision(9);
+    for (double x : v) est_file << x << ' ';
+    est_file << '\n';
+  }
+  est_file.close();
+  ASSERT_EQ(pose, 12);
+  const int code = run_command(fslam_bin() + " eval --gt " + room + "/groundtruth.txt --est " +
+                                   (dir / "est.txt").string() + " --dataset " + room +
+                                   " --json " + (dir / "r.json").string(),
+                               &out, &err);
+  ASSERT_EQ(code, 0) << out << err;
+  EXPECT_NE(out.find("depth agreement: 11 steps of 1 frame(s)"), std::string::npos) << out;
+  const auto json = nlohmann::json::parse(std::ifstream(dir / "r.json"));
+  const auto& depth = json.at("depth_agreement");
+  EXPECT_EQ(depth.at("steps"), 11);
+  const auto& worst = depth.at("worst_estimate_steps").at(0);
+  EXPECT_EQ(worst.at("frame_a"), 5);
+  EXPECT_EQ(worst.at("frame_b"), 6);
+  EXPECT_GT(worst.at("estimate_median_m").get<double>(), 0.02);
+  // Synthetic depth carries the sensor model's noise: the truth agrees to a few millimetres.
+  EXPECT_LT(worst.at("ground_truth_median_m").get<double>(), 0.01);
+  EXPECT_LT(depth.at("ground_truth_median_m").at("max").get<double>(), 0.01);
+
+  // A dataset the estimate does not belong to is refused with the reason.
+  EXPECT_NE(run_command(fslam_bin() + " eval --gt " + room + "/groundtruth.txt --est " +
+                            (dir / "est.txt").string() + " --dataset " + room +
+                            " --frames 0:3 --depth-delta 3",
+                        &out, &err),
+            0);
+  EXPECT_NE(err.find("depth agreement"), std::string::npos) << err;
 }
 
 }  // namespace
