@@ -88,11 +88,9 @@ nlohmann::json worst_steps(std::vector<core::DepthAgreementStep> steps, bool gro
 
 // Scores every step of both trajectories on the dataset's depth and prints the summary and the
 // steps where each side disagrees most with the other; false with `why` on failure.
-bool depth_agreement_report(const EvalOptions& o, const core::Trajectory& gt,
-                            const core::Trajectory& est, nlohmann::json* out, std::string* why) {
-  core::DatasetOptions options;
-  const auto dataset = open_dataset(o.dataset, &options, why);
-  if (!dataset) return false;
+bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
+                            const core::Trajectory& gt, const core::Trajectory& est,
+                            nlohmann::json* out, std::string* why) {
   if (o.depth_delta < 1) {
     *why = "--depth-delta must be >= 1";
     return false;
@@ -102,7 +100,7 @@ bool depth_agreement_report(const EvalOptions& o, const core::Trajectory& gt,
   const core::DepthAgreementConfig config;
   std::vector<core::DepthAgreementStep> steps;
   std::optional<Progress> progress;
-  if (!core::depth_agreement_steps(*dataset, gt, est, association,
+  if (!core::depth_agreement_steps(dataset, gt, est, association,
                                    static_cast<std::size_t>(o.depth_delta), config, &steps, why,
                                    [&](std::size_t done, std::size_t total) {
                                      if (!progress) progress.emplace("depth agreement", total);
@@ -119,7 +117,7 @@ bool depth_agreement_report(const EvalOptions& o, const core::Trajectory& gt,
       }));
   std::printf("\ndepth agreement: %zu steps of %d frame(s) on %s; per step the median |dz| "
               "between frame a's depth moved into frame b and b's depth [m]\n",
-              steps.size(), o.depth_delta, dataset->root().c_str());
+              steps.size(), o.depth_delta, dataset.root().c_str());
   std::printf("%-16s %7s %10s %10s %10s %10s %10s %10s\n", "pose", "steps", "rmse", "mean",
               "median", "std", "min", "max");
   std::cout << row("ground truth", gt_stats.count, gt_stats.rmse, gt_stats.mean, gt_stats.median,
@@ -157,8 +155,23 @@ bool depth_agreement_report(const EvalOptions& o, const core::Trajectory& gt,
 
 int run_eval(const EvalOptions& o) {
   std::string why;
+  std::unique_ptr<core::Dataset> dataset;
+  if (!o.dataset.path.empty()) {
+    core::DatasetOptions options;
+    dataset = open_dataset(o.dataset, &options, &why);
+    if (!dataset) return fail(why);
+  }
   core::Trajectory gt, est;
-  if (!core::read_tum_trajectory(o.gt_path, &gt, &why)) return fail(why);
+  std::string gt_name = o.gt_path;
+  if (!o.gt_path.empty()) {
+    if (!core::read_tum_trajectory(o.gt_path, &gt, &why)) return fail(why);
+  } else if (dataset && dataset->has_ground_truth()) {
+    gt = dataset->ground_truth();  // the selected frames' poses
+    gt_name = dataset->root() + " (its ground truth)";
+  } else {
+    return fail(dataset ? dataset->root() + " has no ground truth: pass --gt"
+                        : "--gt is required without --dataset");
+  }
   if (!core::read_tum_trajectory(o.est_path, &est, &why)) return fail(why);
 
   core::AteConfig ate_config;
@@ -175,7 +188,7 @@ int run_eval(const EvalOptions& o) {
   core::RpeResult rpe;
   if (!core::compute_rpe(gt, est, rpe_config, &rpe, &why)) return fail("RPE: " + why);
 
-  std::printf("ground truth: %s (%zu poses)\nestimate:     %s (%zu poses)\n", o.gt_path.c_str(),
+  std::printf("ground truth: %s (%zu poses)\nestimate:     %s (%zu poses)\n", gt_name.c_str(),
               gt.size(), o.est_path.c_str(), est.size());
   std::printf("association:  %zu pairs, max difference %.3f s\n", ate.pairs, o.max_difference);
   std::printf("alignment:    %s, scale %.6f\n", core::to_string(ate.alignment), ate.scale);
@@ -191,7 +204,7 @@ int run_eval(const EvalOptions& o) {
   std::cout << std::flush;
 
   nlohmann::json depth;
-  if (!o.dataset.path.empty() && !depth_agreement_report(o, gt, est, &depth, &why))
+  if (dataset && !depth_agreement_report(o, *dataset, gt, est, &depth, &why))
     return fail(why);
 
   if (!o.json_path.empty()) {
@@ -202,7 +215,7 @@ int run_eval(const EvalOptions& o) {
       T.push_back(matrix_row);
     }
     nlohmann::json out = {
-        {"ground_truth", o.gt_path},
+        {"ground_truth", gt_name},
         {"estimate", o.est_path},
         {"association", {{"max_difference_s", o.max_difference}, {"offset_s", 0.0}}},
         {"ate",
@@ -251,8 +264,8 @@ void add_eval_command(CLI::App& root, CommandList* commands) {
       "eval", "Trajectory accuracy: ATE (TUM association, Umeyama alignment) and RPE of an "
               "estimate against ground truth, both TUM format (docs/evaluation.md)");
   auto o = std::make_shared<EvalOptions>();
-  app->add_option("--gt", o->gt_path, "Ground-truth trajectory (TUM format)")
-      ->required()
+  app->add_option("--gt", o->gt_path,
+                  "Ground-truth trajectory (TUM format); without it, --dataset's own")
       ->check(CLI::ExistingFile);
   app->add_option("--est", o->est_path, "Estimated trajectory (TUM format)")
       ->required()

@@ -75,9 +75,9 @@ TEST(EvalCli, DepthAgreementFindsTheStepWhereAnEstimateJumps) {
   }
   est_file.close();
   ASSERT_EQ(pose, 12);
-  const int code = run_command(fslam_bin() + " eval --gt " + room + "/groundtruth.txt --est " +
-                                   (dir / "est.txt").string() + " --dataset " + room +
-                                   " --json " + (dir / "r.json").string(),
+  // Without --gt the dataset's own ground truth is the reference.
+  const int code = run_command(fslam_bin() + " eval --est " + (dir / "est.txt").string() +
+                                   " --dataset " + room + " --json " + (dir / "r.json").string(),
                                &out, &err);
   ASSERT_EQ(code, 0) << out << err;
   EXPECT_NE(out.find("depth agreement: 11 steps of 1 frame(s)"), std::string::npos) << out;
@@ -99,6 +99,8 @@ TEST(EvalCli, DepthAgreementFindsTheStepWhereAnEstimateJumps) {
                         &out, &err),
             0);
   EXPECT_NE(err.find("depth agreement"), std::string::npos) << err;
+  EXPECT_NE(run_command(fslam_bin() + " eval --est " + (dir / "est.txt").string(), &out, &err), 0);
+  EXPECT_NE(err.find("--gt is required without --dataset"), std::string::npos) << err;
 }
 
 }  // namespace
