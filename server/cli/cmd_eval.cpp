@@ -60,7 +60,8 @@ std::vector<double> step_medians(const std::vector<core::DepthAgreementStep>& st
   return medians;
 }
 
-// The `count` steps where `worse` exceeds `better` the most, as printed rows and JSON.
+// The `count` steps where one side (the ground truth when `ground_truth`, else the estimate)
+// disagrees with the depth most beyond the other, printed as rows and returned as JSON.
 nlohmann::json worst_steps(std::vector<core::DepthAgreementStep> steps, bool ground_truth,
                            std::size_t count) {
   const auto margin = [&](const core::DepthAgreementStep& s) {
@@ -91,10 +92,6 @@ nlohmann::json worst_steps(std::vector<core::DepthAgreementStep> steps, bool gro
 bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
                             const core::Trajectory& gt, const core::Trajectory& est,
                             nlohmann::json* out, std::string* why) {
-  if (o.depth_delta < 1) {
-    *why = "--depth-delta must be >= 1";
-    return false;
-  }
   core::AssociationConfig association;
   association.max_difference = o.max_difference;
   const core::DepthAgreementConfig config;
