@@ -90,24 +90,6 @@ bool depth_agreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const Pinho
   return true;
 }
 
-namespace {
-
-// The dataset index whose timestamp is nearest `t`, when within `max_difference` seconds.
-bool frame_at(const std::vector<std::pair<double, std::size_t>>& stamps, double t,
-              double max_difference, std::size_t* index) {
-  if (stamps.empty()) return false;
-  const auto it =
-      std::lower_bound(stamps.begin(), stamps.end(), std::make_pair(t, std::size_t{0}));
-  auto nearest = it;
-  if (it == stamps.end() || (it != stamps.begin() && t - std::prev(it)->first < it->first - t))
-    nearest = std::prev(it);
-  if (nearest == stamps.end() || std::abs(nearest->first - t) > max_difference) return false;
-  *index = nearest->second;
-  return true;
-}
-
-}  // namespace
-
 bool depth_agreement_steps(const Dataset& dataset, const Trajectory& gt, const Trajectory& est,
                            const AssociationConfig& association, std::size_t delta,
                            const DepthAgreementConfig& config,
@@ -119,9 +101,8 @@ bool depth_agreement_steps(const Dataset& dataset, const Trajectory& gt, const T
     return false;
   }
   if (!validate(config, why) || !validate(association, why)) return false;
-  std::vector<std::pair<double, std::size_t>> stamps;
-  for (std::size_t i = 0; i < dataset.size(); ++i) stamps.emplace_back(dataset.timestamp(i), i);
-  std::sort(stamps.begin(), stamps.end());
+  Trajectory stamps(dataset.size());  // the dataset's frame times (poses unused)
+  for (std::size_t i = 0; i < stamps.size(); ++i) stamps[i].timestamp = dataset.timestamp(i);
 
   const auto pairs = associate_trajectories(gt, est, association);
   if (pairs.size() <= delta) {
@@ -133,13 +114,15 @@ bool depth_agreement_steps(const Dataset& dataset, const Trajectory& gt, const T
   std::vector<std::size_t> frames(pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     const double t = est[pairs[k].second].timestamp;
-    if (!frame_at(stamps, t, association.max_difference, &frames[k])) {
+    const StampedPose* frame = nearest_pose(stamps, t, association.max_difference);
+    if (frame == nullptr) {
       if (why)
         *why = "depth agreement: the dataset has no frame within " +
                std::to_string(association.max_difference) + " s of the estimate's pose at t = " +
                std::to_string(t) + " s (is it the dataset the estimate was made from?)";
       return false;
     }
+    frames[k] = static_cast<std::size_t>(frame - stamps.data());
   }
 
   std::map<std::size_t, RgbdFrame> loaded;  // the frames the next steps still need
