@@ -51,6 +51,10 @@ std::string row(const char* name, std::size_t count, double rmse, double mean, d
   return buffer;
 }
 
+std::string row(const char* name, const core::ErrorStats& s) {
+  return row(name, s.count, s.rmse, s.mean, s.median, s.std, s.min, s.max);
+}
+
 // Per-step median |dz| of one side, in metres.
 std::vector<double> step_medians(const std::vector<core::DepthAgreementStep>& steps,
                                  bool ground_truth) {
@@ -106,8 +110,10 @@ bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
     return false;
   if (progress) progress->finish();
 
-  const auto gt_stats = core::summarize_errors(step_medians(steps, true));
-  const auto est_stats = core::summarize_errors(step_medians(steps, false));
+  const std::vector<double> gt_medians = step_medians(steps, true);
+  const std::vector<double> est_medians = step_medians(steps, false);
+  const auto gt_stats = core::summarize_errors(gt_medians);
+  const auto est_stats = core::summarize_errors(est_medians);
   const std::size_t estimate_better = static_cast<std::size_t>(
       std::count_if(steps.begin(), steps.end(), [](const auto& s) {
         return s.estimate.median_abs_m < s.ground_truth.median_abs_m;
@@ -117,10 +123,7 @@ bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
               steps.size(), o.depth_delta, dataset.root().c_str());
   std::printf("%-16s %7s %10s %10s %10s %10s %10s %10s\n", "pose", "steps", "rmse", "mean",
               "median", "std", "min", "max");
-  std::cout << row("ground truth", gt_stats.count, gt_stats.rmse, gt_stats.mean, gt_stats.median,
-                   gt_stats.std, gt_stats.min, gt_stats.max)
-            << row("estimate", est_stats.count, est_stats.rmse, est_stats.mean, est_stats.median,
-                   est_stats.std, est_stats.min, est_stats.max);
+  std::cout << row("ground truth", gt_stats) << row("estimate", est_stats);
   std::printf("the estimate agrees better on %zu of %zu steps\n", estimate_better, steps.size());
   constexpr std::size_t kShown = 5;
   std::printf("\nsteps where the ground truth disagrees most with the depth, against the "
@@ -145,8 +148,8 @@ bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
           {"per_step",
            {{"frame_a", frame_a},
             {"frame_b", frame_b},
-            {"ground_truth_median_m", step_medians(steps, true)},
-            {"estimate_median_m", step_medians(steps, false)}}}};
+            {"ground_truth_median_m", gt_medians},
+            {"estimate_median_m", est_medians}}}};
   return true;
 }
 
@@ -194,10 +197,7 @@ int run_eval(const EvalOptions& o) {
               "median", "std", "min", "max");
   std::cout << row("ATE trans [m]", ate.pairs, ate.rmse, ate.mean, ate.median, ate.std, ate.min,
                    ate.max);
-  const auto& t = rpe.translation;
-  const auto& r = rpe.rotation;
-  std::cout << row("RPE trans [m]", t.count, t.rmse, t.mean, t.median, t.std, t.min, t.max)
-            << row("RPE rot [deg]", r.count, r.rmse, r.mean, r.median, r.std, r.min, r.max);
+  std::cout << row("RPE trans [m]", rpe.translation) << row("RPE rot [deg]", rpe.rotation);
   std::cout << std::flush;
 
   nlohmann::json depth;

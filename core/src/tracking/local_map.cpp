@@ -284,8 +284,9 @@ bool LocalMap::fuse_into(const TargetPoint* stored, const Eigen::Vector3f& mean,
   // A map Gaussian counts the re-observation (as the mapper's observation weight will once the
   // keyframe is mapped) but stays where the mapper put it.
   const Eigen::Vector3f fused_mean =
-      stored->origin == PointOrigin::map_gaussian ? stored->mean
-                           : Eigen::Vector3f(fused_cov * (info_stored * stored->mean + info_new * mean));
+      stored->origin == PointOrigin::map_gaussian
+          ? stored->mean
+          : Eigen::Vector3f(fused_cov * (info_stored * stored->mean + info_new * mean));
   if (!fused_cov.allFinite() || !fused_mean.allFinite()) return false;
 
   const VoxelKey from_key = key_of(stored->mean);
