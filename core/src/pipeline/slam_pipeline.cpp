@@ -160,8 +160,9 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
   }
   if (config_.tracker.target == TrackingTarget::gaussians && !tracker_.localising()) {
     // The newest map target, if the mapper built one since the last frame (never waited for).
-    std::shared_ptr<const LocalMap> target;
+    std::unique_ptr<LocalMap> target;
     std::int64_t last_keyframe = -1;
+    std::int64_t bridged = -1;
     {
       std::unique_lock<std::mutex> lock(mutex_);
       if (config_.tracker.map_target.wait_for_mapper && keyframe_awaited_ >= 0) {
@@ -170,12 +171,13 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
         keyframe_awaited_ = -1;
       }
       if (map_target_serial_ != map_target_taken_) {
-        target = map_target_;
+        target = std::move(map_target_);
         last_keyframe = map_target_keyframe_;
+        bridged = map_target_bridged_;
         map_target_taken_ = map_target_serial_;
       }
     }
-    if (target) tracker_.set_map_target(*target, last_keyframe);
+    if (target) tracker_.set_map_target(std::move(*target), last_keyframe, bridged);
   }
   // The trajectory starts where the recording's ground truth does, when it has one.
   if (tracker_.keyframe_count() == 0 && frame.T_world_camera_gt) tracker_.set_initial_pose(*frame.T_world_camera_gt);
@@ -210,6 +212,10 @@ bool SlamPipeline::track_prepared(PreparedFrame&& prepared, TrackingResult* resu
     }
     result->T_map_odom = loop_->map_from_odom();
     result->T_world_camera = result->T_map_odom * T_odom;
+  }
+  if (result->keyframe && config_.mapping && config_.tracker.target == TrackingTarget::gaussians) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    bridge_ = tracker_.unmapped_keyframes();  // shared points: copies pointers, not points
   }
   // Tracking frames never grow the map; keyframes go to the mapper without waiting for it.
   if (result->keyframe && config_.mapping) {
@@ -295,12 +301,13 @@ void SlamPipeline::apply_loop_moves() {
 }
 
 void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
-  // Built here, on the mapping thread, so that tracking only copies it.
+  // Built here, on the mapping thread, bridge included, so that tracking only takes it and
+  // bridges the keyframes it made since (set_map_target).
   LocalMapConfig config = config_.tracker.local_map;
   config.fuse = false;  // Gaussians are not observations to average
   config.min_point_distance = std::min(config_.tracker.map_target.min_point_distance, config.voxel_size);
   const Eigen::Vector3f centre = kf.T_world_camera.translation().cast<float>();
-  auto target = std::make_shared<LocalMap>(config);
+  auto target = std::make_unique<LocalMap>(config);
   GaussianPoints points = map_target_points(mapper_.map(), centre, config.radius, config_.tracker.map_target,
                                             config_.tracker.preprocess);
   std::vector<PointOrigin> origins(points.size(), PointOrigin::map_gaussian);
@@ -320,9 +327,17 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
       if (seen[k] < kMinViewsToHoldMean) origins[k] = PointOrigin::observation;
   }
   target->insert(points, centre, origins);
+  std::deque<BridgeKeyframe> bridge;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    bridge = bridge_;
+  }
+  target->set_fuse(config_.tracker.local_map.fuse);  // the bridge's points fuse as the tracker's
+  const std::int64_t bridged = bridge_keyframes(bridge, kf.frame_id, target.get());
   std::lock_guard<std::mutex> lock(mutex_);
   map_target_ = std::move(target);
   map_target_keyframe_ = kf.frame_id;
+  map_target_bridged_ = bridged;
   ++map_target_serial_;
   map_target_published_.notify_all();
 }

@@ -2,6 +2,7 @@
 
 #include "fslam/core/tracking/point_features.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -55,18 +56,21 @@ const char* to_string(TrackingTarget target) {
   return target == TrackingTarget::gaussians ? "gaussians" : "points";
 }
 
-void Tracker::set_map_target(const LocalMap& target, std::int64_t last_keyframe_id) {
-  while (!unmapped_.empty() && unmapped_.front().frame_id <= last_keyframe_id) unmapped_.pop_front();
-  map_ = target;
-  map_.set_fuse(config_.local_map.fuse);  // the target's own setting (no fusing) is for its Gaussians
-  for (const Keyframe& kf : unmapped_) insert_keyframe_points(kf.points_camera, kf.T_world_camera);
+std::int64_t bridge_keyframes(const std::deque<BridgeKeyframe>& bridge, std::int64_t after_id, LocalMap* target) {
+  std::int64_t newest = after_id;
+  for (const BridgeKeyframe& kf : bridge) {
+    if (kf.frame_id <= after_id) continue;
+    target->insert(transformed(*kf.points_camera, kf.T_world_camera), kf.T_world_camera.translation().cast<float>());
+    newest = kf.frame_id;
+  }
+  return newest;
 }
 
-void Tracker::insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera) {
-  // Fused as the point map fuses re-observations (min_point_distance). On a map target, a point
-  // within it of a target point is fused into that (a held map Gaussian keeps its mean); a point
-  // the target lacks is a bridge point, fused with the other bridge points there.
-  map_.insert(transformed(points_camera, T_world_camera), T_world_camera.translation().cast<float>());
+void Tracker::set_map_target(LocalMap target, std::int64_t last_keyframe_id, std::int64_t bridged_through) {
+  while (!unmapped_.empty() && unmapped_.front().frame_id <= last_keyframe_id) unmapped_.pop_front();
+  map_ = std::move(target);
+  map_.set_fuse(config_.local_map.fuse);  // the target's own setting (no fusing) is for its Gaussians
+  bridge_keyframes(unmapped_, std::max(last_keyframe_id, bridged_through), &map_);
 }
 
 const char* to_string(TrackingState state) {
@@ -180,7 +184,7 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     // The keyframe's points are fused into the map (moving the points they re-observe), then
     // the keyframe re-observes the map's features; a stored point within the correspondence
     // gate of the keyframe's depth is the surface the keyframe sees.
-    insert_keyframe_points(source, T_world_camera);
+    map_.insert(transformed(source, T_world_camera), T_world_camera.translation().cast<float>());
     // On the map's Gaussians the target features are the distilled ones (eq. feat_dist's f_t):
     // keyframes refresh only their own points' features.
     if (config_.target == TrackingTarget::points && config_.refresh_features && latent != nullptr &&
@@ -191,9 +195,9 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     if (config_.relocalisation.enabled && describe())
       relocaliser_.add_keyframe(frame.id, T_world_camera, std::move(description));
     if (config_.target == TrackingTarget::gaussians) {
-      unmapped_.push_back(keyframes_.back());
+      unmapped_.push_back({frame.id, T_world_camera, std::make_shared<const GaussianPoints>(source)});
       // A mapper this far behind is not waited for: the oldest unmapped keyframes leave the
-      // bridge (they are still in the current target copy until the next one replaces it).
+      // bridge (they are still in the current target until the next one replaces it).
       while (unmapped_.size() > kMaxUnmappedKeyframes) unmapped_.pop_front();
     }
     while (keyframes_.size() > static_cast<std::size_t>(config_.loss.recovery_keyframes) + 1)

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <memory>
 
 #include <Eigen/Eigenvalues>
@@ -155,37 +156,38 @@ TEST(MapTarget, NeighbourCovarianceIsThePlaneOfTheMeansNotTheGaussiansShape) {
   }
 }
 
-// The bridge fuses the keyframes into the target copy as the point map fuses re-observations:
-// a keyframe point within min_point_distance of a map Gaussian adds its information to that
-// Gaussian (as the mapper's observation weight will count the keyframe once it is mapped) and
-// never moves its mean; the points the target lacks are added and fused among themselves.
-TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
-  const SyntheticRoom room = make_room(1);
-  SynthOptions options;
-  options.frames = 2;
-  const Trajectory trajectory = make_trajectory(room, options);
-  const PinholeCamera camera = synth_default_camera().scaled(0.25);
+// A Gaussian-target tracker whose two frames are both keyframes.
+TrackerConfig bridge_test_config() {
   TrackerConfig config;
   config.preprocess.stride = 2;
   config.target = TrackingTarget::gaussians;
   config.keyframe.translation = 1e-6;  // both frames are keyframes
   config.keyframe.rotation_deg = 1e-6;
-  Tracker tracker(config);
-  std::vector<GaussianPoints> raw;  // each keyframe's points in the world, as the tracker got them
-  tracker.set_initial_pose(trajectory[0].T_world_camera);
+  return config;
+}
+
+// Two views of the synthetic room tracked as keyframes 7 and 8 by a Gaussian-target tracker with
+// no map version yet (each keyframe's world points in `raw`), and a target that has the left half
+// of the first keyframe's surface (x < median, world), 2 mm off and with ten times the
+// covariance, made as SlamPipeline makes targets (no fusing).
+void track_two_keyframes_and_make_half_target(Tracker* tracker, const TrackerConfig& config,
+                                              std::vector<GaussianPoints>* raw, LocalMap* target) {
+  const SyntheticRoom room = make_room(1);
+  SynthOptions options;
+  options.frames = 2;
+  const Trajectory trajectory = make_trajectory(room, options);
+  const PinholeCamera camera = synth_default_camera().scaled(0.25);
+  tracker->set_initial_pose(trajectory[0].T_world_camera);
   for (std::size_t i = 0; i < 2; ++i) {
     PreparedSource source;
     TrackingResult result;
     ASSERT_NO_FATAL_FAILURE(
-        track_view(&tracker, room, camera, trajectory[i], static_cast<std::int64_t>(7 + i), &source, &result));
+        track_view(tracker, room, camera, trajectory[i], static_cast<std::int64_t>(7 + i), &source, &result));
     ASSERT_TRUE(result.keyframe) << "frame " << i;
-    raw.push_back(transformed(source.points, result.T_world_camera));
+    raw->push_back(transformed(source.points, result.T_world_camera));
   }
-  const GaussianPoints& first = raw[0];
+  const GaussianPoints& first = raw->front();
   ASSERT_GT(first.size(), 100u);
-
-  // A target that has the left half of the first keyframe's surface (x < median, world), 2 mm
-  // off and with ten times the covariance, made as SlamPipeline makes targets (no fusing).
   std::vector<float> xs;
   for (const Eigen::Vector3f& m : first.means) xs.push_back(m.x());
   std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
@@ -198,9 +200,23 @@ TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
   }
   LocalMapConfig local = config.local_map;
   local.fuse = false;
-  LocalMap target(local);
-  target.insert(half, trajectory[0].T_world_camera.translation().cast<float>(),
-                std::vector<PointOrigin>(half.size(), PointOrigin::map_gaussian));
+  *target = LocalMap(local);
+  target->insert(half, trajectory[0].T_world_camera.translation().cast<float>(),
+                 std::vector<PointOrigin>(half.size(), PointOrigin::map_gaussian));
+}
+
+// The bridge fuses the keyframes into the target copy as the point map fuses re-observations:
+// a keyframe point within min_point_distance of a map Gaussian adds its information to that
+// Gaussian (as the mapper's observation weight will count the keyframe once it is mapped) and
+// never moves its mean; the points the target lacks are added and fused among themselves.
+TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
+  const TrackerConfig config = bridge_test_config();
+  Tracker tracker(config);
+  std::vector<GaussianPoints> raw;  // each keyframe's points in the world, as the tracker got them
+  LocalMap target;
+  ASSERT_NO_FATAL_FAILURE(track_two_keyframes_and_make_half_target(&tracker, config, &raw, &target));
+  const GaussianPoints& first = raw.front();
+  const LocalMapConfig& local = config.local_map;
   const GaussianPoints target_points = target.points();
   tracker.set_map_target(target, 6);  // neither keyframe is in this version: both bridged
 
@@ -240,6 +256,72 @@ TEST(MapTarget, BridgeCountsReobservedGaussiansAndFillsWhatTheTargetLacks) {
   EXPECT_EQ(all.size(), target_points.size() + added);
   EXPECT_GT(added, first.size() / 3) << "the right half is bridged";
   EXPECT_GT(fused, added / 4) << fused << " of " << added << " bridge points fused";
+}
+
+// The mapping thread bridges the keyframes it knows of into the target it builds
+// (SlamPipeline::publish_map_target) and the tracker only the newer ones: whichever side bridges
+// a keyframe, the tracker registers against the same points, each keyframe fused once.
+TEST(MapTarget, BridgingSplitBetweenBuilderAndTrackerGivesTheSameTarget) {
+  const TrackerConfig config = bridge_test_config();
+  const auto points_of = [](const LocalMap& map) {
+    GaussianPoints p = map.points();
+    std::vector<std::size_t> order(p.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+      return std::lexicographical_compare(p.means[a].data(), p.means[a].data() + 3, p.means[b].data(),
+                                          p.means[b].data() + 3);
+    });
+    std::vector<std::pair<Eigen::Vector3f, Eigen::Matrix3f>> sorted;
+    for (std::size_t i : order) sorted.emplace_back(p.means[i], p.covariances[i]);
+    return sorted;
+  };
+  const auto expect_same = [](const auto& a, const auto& b, const char* what) {
+    ASSERT_EQ(a.size(), b.size()) << what;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      EXPECT_LT((a[i].first - b[i].first).norm(), 1e-7f) << what << ": point " << i;
+      EXPECT_LT((a[i].second - b[i].second).norm(), 1e-7f * b[i].second.norm()) << what << ": point " << i;
+    }
+  };
+
+  Tracker tracker(config);
+  std::vector<GaussianPoints> raw;
+  LocalMap target;
+  ASSERT_NO_FATAL_FAILURE(track_two_keyframes_and_make_half_target(&tracker, config, &raw, &target));
+  const std::deque<BridgeKeyframe> unmapped = tracker.unmapped_keyframes();
+  ASSERT_EQ(unmapped.size(), 2u);
+  ASSERT_EQ(unmapped[0].frame_id, 7);
+  ASSERT_EQ(unmapped[1].frame_id, 8);
+
+  tracker.set_map_target(target, 6);  // the tracker bridges both keyframes
+  const auto by_tracker = points_of(tracker.local_map());
+  ASSERT_GT(by_tracker.size(), target.size());
+
+  // The builder bridges both, or only the first (it had not seen the second yet).
+  for (const std::int64_t builder_through : {std::int64_t{8}, std::int64_t{7}}) {
+    LocalMap built = target;
+    built.set_fuse(config.local_map.fuse);
+    std::deque<BridgeKeyframe> known;
+    for (const BridgeKeyframe& kf : unmapped)
+      if (kf.frame_id <= builder_through) known.push_back(kf);
+    EXPECT_EQ(bridge_keyframes(known, 6, &built), builder_through);
+    tracker.set_map_target(built, 6, builder_through);
+    expect_same(points_of(tracker.local_map()), by_tracker, builder_through == 8 ? "builder both" : "builder first");
+  }
+
+  // A keyframe bridged twice would count twice: the tracker must not re-bridge what the builder did.
+  LocalMap built = target;
+  built.set_fuse(config.local_map.fuse);
+  bridge_keyframes(unmapped, 6, &built);
+  tracker.set_map_target(built, 6);
+  const auto twice = points_of(tracker.local_map());
+  double trace_twice = 0.0, trace_once = 0.0;
+  for (const auto& p : twice) trace_twice += p.second.trace();
+  for (const auto& p : by_tracker) trace_once += p.second.trace();
+  EXPECT_LT(trace_twice, 0.9 * trace_once) << "fusing each keyframe twice shrinks the covariances";
+  // Nothing newer than after_id: nothing inserted.
+  LocalMap untouched = target;
+  EXPECT_EQ(bridge_keyframes(unmapped, 8, &untouched), 8);
+  EXPECT_EQ(untouched.size(), target.size());
 }
 
 // The tracker follows the synthetic room against targets made from a Gaussian map that a stand-in

@@ -188,10 +188,15 @@ class SlamPipeline {
   // frame when features_ is set and track_with_features is on.
   std::unique_ptr<LatentFeatures> tracking_features_;
   std::shared_ptr<PyramidPool> pyramids_;
-  // tracker.target = gaussians: the newest target built from the map on the mapping thread, the
-  // last keyframe it contains, and a serial the tracking side compares with the one it took.
-  std::shared_ptr<const LocalMap> map_target_;          // guarded by mutex_
+  // tracker.target = gaussians: the newest target built from the map on the mapping thread (the
+  // tracking side takes it, moved, not copied), the last keyframe it contains, the newest
+  // keyframe it bridges, and a serial the tracking side compares with the one it took.
+  std::unique_ptr<LocalMap> map_target_;                // guarded by mutex_
   std::int64_t map_target_keyframe_ = -1;               // guarded by mutex_
+  std::int64_t map_target_bridged_ = -1;                // guarded by mutex_
+  // The tracker's unmapped keyframes as of its last keyframe, for the mapping thread to bridge
+  // into the target it builds (the tracking thread then bridges only what is newer).
+  std::deque<BridgeKeyframe> bridge_;                   // guarded by mutex_
   std::uint64_t map_target_serial_ = 0;                 // guarded by mutex_
   std::uint64_t map_target_taken_ = 0;                  // tracking side only
   std::int64_t keyframe_awaited_ = -1;  // tracking side: map_target.wait_for_mapper waits for it

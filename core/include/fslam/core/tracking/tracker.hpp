@@ -105,6 +105,22 @@ struct PreparedSource {
   double preprocess_ms = 0.0;
 };
 
+// A keyframe no map version contains yet (tracker.target = gaussians). Its points are shared and
+// never change, so the mapping thread can bridge them into a target it builds.
+struct BridgeKeyframe {
+  std::int64_t frame_id = 0;
+  Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
+  std::shared_ptr<const GaussianPoints> points_camera;
+};
+
+// Inserts the points of every keyframe of `bridge` newer than `after_id` into `target`, oldest
+// first, as the point map inserts a keyframe's (LocalMap::insert, with the target's fuse
+// setting): a point within min_point_distance of a target point is fused into it (a held map
+// Gaussian, PointOrigin::map_gaussian, takes its information and keeps its mean); the rest fill
+// what the target lacks, fused among themselves. Returns the newest frame_id inserted, or
+// `after_id` when none is newer.
+std::int64_t bridge_keyframes(const std::deque<BridgeKeyframe>& bridge, std::int64_t after_id, LocalMap* target);
+
 class Tracker {
  public:
   explicit Tracker(const TrackerConfig& config);
@@ -133,13 +149,13 @@ class Tracker {
   void set_initial_pose(const Eigen::Isometry3d& T_world_camera) { T_initial_ = T_world_camera; }
   // With target = gaussians: the target built from a map version that contains every keyframe
   // up to `last_keyframe_id` (SlamPipeline builds it on the mapping thread). The tracker then
-  // registers against a copy of it plus the keyframes it made since, which no version holds
-  // yet (the bridge between a keyframe and the map version that contains it). The keyframes'
-  // points are fused into the copy as the point map fuses re-observations (LocalMap::insert):
-  // one within min_point_distance of a target point is fused into it (a held map Gaussian,
-  // PointOrigin::map_gaussian, takes its information and keeps its mean); the rest fill what
-  // the target lacks, fused among themselves.
-  void set_map_target(const LocalMap& target, std::int64_t last_keyframe_id);
+  // registers against it plus the keyframes it made since, which no version holds yet (the
+  // bridge between a keyframe and the map version that contains it, bridge_keyframes). The
+  // builder may have bridged some of them already, on its own thread: those up to
+  // `bridged_through`; the tracker adds only the newer ones.
+  void set_map_target(LocalMap target, std::int64_t last_keyframe_id, std::int64_t bridged_through = -1);
+  // target = gaussians: the keyframes no map target contains yet, oldest first (bounded).
+  const std::deque<BridgeKeyframe>& unmapped_keyframes() const { return unmapped_; }
   // Starts in an existing map (session modes localise and extend, issue 20): `map` is the target
   // (localisation_target of the map's Gaussians) and `keyframes` the relocaliser's; the first
   // frame, and every frame until one is found, relocalises with no prior pose. localise: the
@@ -170,12 +186,10 @@ class Tracker {
   std::optional<Eigen::Isometry3d> T_last_;       // last tracked pose (world <- camera)
   std::optional<Eigen::Isometry3d> T_velocity_;   // T_{k-2}^-1 T_{k-1}
   std::deque<Keyframe> keyframes_;                // most recent last, bounded
-  // Inserts a keyframe's points into map_ (the point map, or the copy of a map target).
-  void insert_keyframe_points(const GaussianPoints& points_camera, const Eigen::Isometry3d& T_world_camera);
 
   // target = gaussians: keyframes no map target contains yet, oldest first (their points are
-  // added to each new target copy).
-  std::deque<Keyframe> unmapped_;
+  // added to each new target).
+  std::deque<BridgeKeyframe> unmapped_;
   Relocaliser relocaliser_;                       // every keyframe, described (bounded)
   bool localising_ = false;                       // start_in localise: map and keyframes fixed
   bool relocalise_first_ = false;                 // start_in: no pose until relocalised
