@@ -1,7 +1,6 @@
 #include "fslam/core/tracking/relocaliser.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <iomanip>
 #include <limits>
@@ -12,6 +11,7 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/error.hpp"
 #include "fslam/core/geometry/se3.hpp"
 #include "fslam/core/tracking/gicp_impl.hpp"
@@ -19,11 +19,6 @@
 
 namespace fslam::core {
 namespace {
-
-double now_ms() {
-  using namespace std::chrono;
-  return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
-}
 
 // Three matched points closer than this to each other's line fit a pose badly.
 constexpr double kMinSampleSpread = 0.05;  // metres, the smallest triangle height of a sample
@@ -286,7 +281,7 @@ bool Relocaliser::pose_from_keyframe(const FrameDescription& query, std::int64_t
 
 RelocalisationAttempt Relocaliser::relocalise(const FrameDescription& query, const GaussianPoints& source,
                                               const LocalMap& map, const GicpConfig& gicp) const {
-  const double t0 = now_ms();
+  const double t0 = steady_ms();
   RelocalisationAttempt a;
   const std::vector<std::int64_t> ids =
       similar_keyframes(query, static_cast<std::size_t>(config_.candidates));
@@ -313,7 +308,7 @@ RelocalisationAttempt Relocaliser::relocalise(const FrameDescription& query, con
       break;
     }
   }
-  a.time_ms = now_ms() - t0;
+  a.time_ms = steady_ms() - t0;
   std::ostringstream line;
   line << "relocalisation " << (a.accepted ? "accepted" : "failed") << ": " << a.candidates
        << " candidate keyframe(s), best " << a.keyframe_id << " with " << a.matches << " matches, " << a.inliers

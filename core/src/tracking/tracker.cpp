@@ -3,20 +3,15 @@
 #include "fslam/core/tracking/point_features.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/error.hpp"
 #include "fslam/core/tracking/gicp_impl.hpp"
 #include "fslam/core/tracking/kdtree_target.hpp"
 
 namespace fslam::core {
 namespace {
-
-double now_ms() {
-  using namespace std::chrono;
-  return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
-}
 
 // Re-registration after a loss searches wider: the prediction may be off by more than one frame.
 constexpr float kRecoveryDistanceFactor = 2.0f;
@@ -106,7 +101,7 @@ void Tracker::reset() {
 }
 
 RelocalisationAttempt Tracker::relocalise(const RgbdFrame& frame, const PreparedSource& prepared) const {
-  const double t0 = now_ms();
+  const double t0 = steady_ms();
   FrameDescription query;
   std::string why;
   if (!describe_frame(frame, config_.relocalisation, config_.preprocess.min_depth, config_.preprocess.max_depth,
@@ -115,7 +110,7 @@ RelocalisationAttempt Tracker::relocalise(const RgbdFrame& frame, const Prepared
     failed.message = "relocalisation failed: " + why;
     return failed;
   }
-  const double described = now_ms() - t0;
+  const double described = steady_ms() - t0;
   RelocalisationAttempt a = relocalise(query, prepared);
   a.describe_ms = described;
   return a;
@@ -146,12 +141,12 @@ bool Tracker::is_lost(const GicpResult& gicp) const {
 
 bool Tracker::preprocess(const RgbdFrame& frame, const PlanarImage* latent, PreparedSource* out,
                          std::string* why) const {
-  const double t0 = now_ms();
+  const double t0 = steady_ms();
   // Depth -> camera-frame Gaussian points (source set of eq. gicp_sets), with the frame's
   // features at their pixels (f_s of eq. feat_dist).
   if (!preprocess_frame(frame, config_.preprocess, &out->points, &out->stats, why)) return false;
   if (latent != nullptr && !latent->empty()) sample_point_features(*latent, frame.camera, &out->points);
-  out->preprocess_ms = now_ms() - t0;
+  out->preprocess_ms = steady_ms() - t0;
   return true;
 }
 
@@ -164,7 +159,7 @@ bool Tracker::track(const RgbdFrame& frame, TrackingResult* result, std::string*
 bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepared,
                              TrackingResult* result, std::string* why, const PlanarImage* latent) {
   (void)why;  // registration has no bad-input case left: preprocess checked the frame
-  const double t1 = now_ms();
+  const double t1 = steady_ms();
   *result = TrackingResult{};
   const GaussianPoints& source = prepared.points;
   result->preprocess = prepared.stats;
@@ -207,9 +202,9 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
   // Global relocalisation against every described keyframe, with no prior pose (the
   // description the wide-baseline start may have made already is reused).
   const auto relocalise_globally = [&] {
-    const double t_describe = now_ms();
+    const double t_describe = steady_ms();
     const bool ok = describe();
-    const double describe_ms = now_ms() - t_describe;
+    const double describe_ms = steady_ms() - t_describe;
     result->relocalisation = ok ? relocalise(description, prepared) : RelocalisationAttempt{};
     result->relocalisation->describe_ms = describe_ms;
     if (!ok) result->relocalisation->message = "relocalisation failed: the frame has no ORB description";
@@ -232,8 +227,8 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
       result->state = TrackingState::lost;
       result->message = "not localised yet: " + result->relocalisation->message;
     }
-    result->timings.registration_ms = now_ms() - t1;
-    result->timings.total_ms = now_ms() - t0;
+    result->timings.registration_ms = steady_ms() - t1;
+    result->timings.total_ms = steady_ms() - t0;
     return true;
   }
 
@@ -243,7 +238,7 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
       result->state = TrackingState::lost;
       result->message = "first frame has only " + std::to_string(source.size()) +
                         " usable depth points; waiting for a better one";
-      result->timings.total_ms = now_ms() - t0;
+      result->timings.total_ms = steady_ms() - t0;
       return true;
     }
     T_last_ = T_initial_;
@@ -251,8 +246,8 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     result->T_world_camera = T_initial_;
     result->state = TrackingState::initialising;
     result->keyframe = true;
-    result->timings.map_update_ms = now_ms() - t1;
-    result->timings.total_ms = now_ms() - t0;
+    result->timings.map_update_ms = steady_ms() - t1;
+    result->timings.total_ms = steady_ms() - t0;
     return true;
   }
 
@@ -326,12 +321,12 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
       if (result->relocalisation) result->message += "; " + result->relocalisation->message;
       result->T_world_camera = T_predicted;
       result->gicp = gicp;
-      result->timings.registration_ms = now_ms() - t1;
-      result->timings.total_ms = now_ms() - t0;
+      result->timings.registration_ms = steady_ms() - t1;
+      result->timings.total_ms = steady_ms() - t0;
       return true;
     }
   }
-  const double t2 = now_ms();
+  const double t2 = steady_ms();
   result->timings.registration_ms = t2 - t1;
 
   const Eigen::Isometry3d T_world_camera = gicp.T_target_source;
@@ -346,8 +341,8 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     add_keyframe(T_world_camera);
     result->keyframe = true;
   }
-  result->timings.map_update_ms = now_ms() - t2;
-  result->timings.total_ms = now_ms() - t0;
+  result->timings.map_update_ms = steady_ms() - t2;
+  result->timings.total_ms = steady_ms() - t0;
   return true;
 }
 
