@@ -2,8 +2,10 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <fstream>
 #include <memory>
+#include <mutex>
 #include <random>
 #include <thread>
 
@@ -205,6 +207,81 @@ TEST_F(SynthPipeline, GaussianTargetWaitsForTheKeyframesMapVersionWhenAsked) {
   mapping.join();
   EXPECT_TRUE(mapping_ok) << mapping_why;
   EXPECT_GE(keyframes, 3);
+}
+
+// Without the wait the tracker runs ahead of the mapper. Here the mapper is held after its first
+// keyframe while the tracker makes the rest: the target built from the second keyframe's version
+// carries every newer keyframe as a bridge, built on the mapping thread from the tracker's list,
+// and the tracker goes on against it as closely as against the point map.
+TEST_F(SynthPipeline, GaussianTargetBridgesTheKeyframesTheMapperHasNotMapped) {
+  std::string why;
+  const auto dataset = frames("0:60", &why);
+  ASSERT_TRUE(dataset) << why;
+  core::PipelineConfig config;
+  config.tracker.target = core::TrackingTarget::gaussians;
+  config.mapper.insert_from = core::MapperConfig::InsertFrom::source;
+  config.mapper.iterations_per_keyframe = 10;
+  core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
+  std::mutex mutex;
+  std::condition_variable changed;
+  std::vector<core::KeyframeReport> reports;  // guarded by mutex
+  std::size_t allowed = 1;                    // keyframes the mapper may finish; guarded by mutex
+  bool mapping_ok = false;
+  std::string mapping_why;
+  std::thread mapping([&] {
+    mapping_ok = pipeline.run_mapping(
+        [&](const core::KeyframeReport& report) {
+          std::unique_lock<std::mutex> lock(mutex);
+          reports.push_back(report);
+          changed.notify_all();
+          changed.wait(lock, [&] { return reports.size() < allowed; });
+        },
+        &mapping_why);
+  });
+  const auto release = [&](std::size_t keyframes) {
+    std::lock_guard<std::mutex> lock(mutex);
+    allowed = keyframes;
+    changed.notify_all();
+  };
+  const auto wait_for_reports = [&](std::size_t n) {
+    std::unique_lock<std::mutex> lock(mutex);
+    return changed.wait_for(lock, std::chrono::seconds(120), [&] { return reports.size() >= n; });
+  };
+
+  core::Trajectory estimate;
+  std::vector<std::int64_t> keyframes;
+  const auto track = [&](std::size_t i) {
+    core::TrackingResult result;
+    ASSERT_TRUE(process(*dataset, i, &pipeline, &result, &why)) << why;
+    EXPECT_NE(result.state, core::TrackingState::lost) << "frame " << i << ": " << result.message;
+    estimate.push_back({dataset->timestamp(i), result.T_world_camera});
+    if (result.keyframe) keyframes.push_back(static_cast<std::int64_t>(i));
+  };
+  for (std::size_t i = 0; i < 40; ++i) ASSERT_NO_FATAL_FAILURE(track(i));
+  ASSERT_TRUE(wait_for_reports(1));
+  ASSERT_GE(keyframes.size(), 4u);
+  // The mapper maps the second keyframe now, with every later one made.
+  release(2);
+  ASSERT_TRUE(wait_for_reports(2));
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(reports[0].frame_id, keyframes[0]);
+    EXPECT_EQ(reports[1].frame_id, keyframes[1]);
+    EXPECT_EQ(reports[1].bridged_keyframes, keyframes.size() - 2);
+  }
+  release(1000);
+  for (std::size_t i = 40; i < dataset->size(); ++i) ASSERT_NO_FATAL_FAILURE(track(i));
+  pipeline.finish();
+  mapping.join();
+  EXPECT_TRUE(mapping_ok) << mapping_why;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(reports.size(), keyframes.size());
+    for (const core::KeyframeReport& r : reports) EXPECT_LE(r.bridged_keyframes, keyframes.size()) << r.frame_id;
+  }
+  core::AteResult ate;
+  ASSERT_TRUE(core::compute_ate(dataset->ground_truth(), estimate, core::AteConfig{}, &ate, &why)) << why;
+  EXPECT_LT(ate.rmse, 0.01);  // metres, as the point map's test above
 }
 
 // Real time with nothing left to map: idle optimisation goes on for max_idle_iterations after the

@@ -300,7 +300,7 @@ void SlamPipeline::apply_loop_moves() {
   if (!moves.empty()) mapper_.move_keyframes(moves);
 }
 
-void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
+std::size_t SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   // Built here, on the mapping thread, bridge included, so that tracking only takes it and
   // bridges the keyframes it made since (set_map_target).
   LocalMapConfig config = config_.tracker.local_map;
@@ -340,6 +340,8 @@ void SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   map_target_bridged_ = bridged;
   ++map_target_serial_;
   map_target_published_.notify_all();
+  return static_cast<std::size_t>(std::count_if(
+      bridge.begin(), bridge.end(), [&](const BridgeKeyframe& b) { return b.frame_id > kf.frame_id; }));
 }
 
 bool SlamPipeline::tracking_pyramid_is_mappers() const {
@@ -470,7 +472,7 @@ bool SlamPipeline::run_mapping(const std::function<void(const KeyframeReport&)>&
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     }
     if (!mapper_.add_keyframe(kf, &report.refinement, why)) return false;
-    if (config_.tracker.target == TrackingTarget::gaussians) publish_map_target(kf);
+    if (config_.tracker.target == TrackingTarget::gaussians) report.bridged_keyframes = publish_map_target(kf);
     report.map_size = mapper_.map().size();
     report.queue_depth = waiting;
     if (on_keyframe) on_keyframe(report);

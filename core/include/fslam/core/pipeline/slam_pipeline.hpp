@@ -65,6 +65,9 @@ struct KeyframeReport {
   std::size_t map_size = 0;
   std::size_t queue_depth = 0;  // keyframes still waiting after this one
   double features_ms = 0;       // encoder + autoencoder for the keyframe's latent target
+  // tracker.target = gaussians: the tracker's keyframes newer than this one that the mapping
+  // thread bridged into the target it built from this keyframe's map version (0 otherwise).
+  std::size_t bridged_keyframes = 0;
 };
 
 // A frame made ready for registration: the source Gaussians with their features, the latent on
@@ -182,7 +185,8 @@ class SlamPipeline {
   // pool, and the latent on the tracker's lattice.
   bool encode_for_tracking(const cv::Mat& colour, const PinholeCamera& camera,
                            std::shared_ptr<FeaturePyramid>* pyramid, PlanarImage* latent, std::string* why);
-  void publish_map_target(const MapperKeyframe& kf);
+  // Returns how many of the tracker's newer keyframes it bridged into the target.
+  std::size_t publish_map_target(const MapperKeyframe& kf);
   std::unique_ptr<LatentFeatures> features_;  // used by the mapping thread only
   // The preparing thread's own encoder (LatentFeatures is not thread-safe), made by warm_up or the first
   // frame when features_ is set and track_with_features is on.
