@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -36,6 +37,7 @@ struct EvalOptions {
   std::string rpe_unit = "frames";
   DatasetArgs dataset;  // set: score each step's depth agreement (core/eval/depth_agreement.hpp)
   int depth_delta = 1;  // frames between the two depths of a step
+  bool residual_grid = false;  // with dataset: the signed residuals' medians over the image
 };
 
 nlohmann::json stats_json(const core::ErrorStats& s) {
@@ -91,6 +93,49 @@ nlohmann::json worst_steps(std::vector<core::DepthAgreementStep> steps, bool gro
   return rows;
 }
 
+// Prints, per depth bin, the median signed residual of every image cell under both sides' poses
+// (mm; "." below kMinSamples) and returns them as JSON (metres, null below kMinSamples).
+nlohmann::json residual_grid_report(const core::DepthResidualGrid& gt, const core::DepthResidualGrid& est) {
+  constexpr std::size_t kMinSamples = 200;
+  nlohmann::json bins = nlohmann::json::array();
+  std::printf("\nresidual grid: median of z_b - z_moved over the steps, by where the sample lands in b "
+              "(%d x %d cells) and its depth [mm]; ground truth | estimate\n", est.cols, est.rows);
+  for (int bin = 0; bin < est.bins(); ++bin) {
+    const double lo = bin == 0 ? 0.0 : est.depth_edges[static_cast<std::size_t>(bin - 1)];
+    const bool last = bin == est.bins() - 1;
+    const double hi = last ? std::numeric_limits<double>::infinity() : est.depth_edges[static_cast<std::size_t>(bin)];
+    nlohmann::json side[2] = {nlohmann::json::array(), nlohmann::json::array()};
+    std::size_t samples = 0;
+    std::string lines;
+    for (int r = 0; r < est.rows; ++r) {
+      nlohmann::json row[2] = {nlohmann::json::array(), nlohmann::json::array()};
+      for (int k = 0; k < 2; ++k) {
+        const core::DepthResidualGrid& g = k == 0 ? gt : est;
+        for (int c = 0; c < g.cols; ++c) {
+          const double m = g.median(bin, r, c, kMinSamples);
+          if (k == 1) samples += g.count(bin, r, c);
+          row[k].push_back(std::isfinite(m) ? nlohmann::json(m) : nlohmann::json(nullptr));
+          char cell[16];
+          if (std::isfinite(m)) std::snprintf(cell, sizeof cell, "%+6.1f", 1e3 * m);
+          else std::snprintf(cell, sizeof cell, "%6s", ".");
+          lines += cell;
+        }
+        lines += k == 0 ? "  |" : "\n";
+        side[k].push_back(row[k]);
+      }
+    }
+    if (samples == 0) continue;
+    if (last) std::printf("depth from %.1f m (%zu samples under the estimate)\n%s", lo, samples, lines.c_str());
+    else std::printf("depth %.1f-%.1f m (%zu samples under the estimate)\n%s", lo, hi, samples, lines.c_str());
+    bins.push_back({{"min_depth_m", lo},
+                    {"max_depth_m", last ? nlohmann::json(nullptr) : nlohmann::json(hi)},
+                    {"samples", samples},
+                    {"ground_truth_median_m", side[0]},
+                    {"estimate_median_m", side[1]}});
+  }
+  return {{"cols", est.cols}, {"rows", est.rows}, {"min_samples", kMinSamples}, {"bins", bins}};
+}
+
 // Scores every step of both trajectories on the dataset's depth and prints the summary and the
 // steps where each side disagrees most with the other; false with `why` on failure.
 bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
@@ -101,12 +146,15 @@ bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
   const core::DepthAgreementConfig config;
   std::vector<core::DepthAgreementStep> steps;
   std::optional<Progress> progress;
+  core::DepthResidualGrid gt_grid, est_grid;
   if (!core::depth_agreement_steps(dataset, gt, est, association,
                                    static_cast<std::size_t>(o.depth_delta), config, &steps, why,
                                    [&](std::size_t done, std::size_t total) {
                                      if (!progress) progress.emplace("depth agreement", total);
                                      progress->update(done);
-                                   }))
+                                   },
+                                   o.residual_grid ? &gt_grid : nullptr,
+                                   o.residual_grid ? &est_grid : nullptr))
     return false;
   if (progress) progress->finish();
 
@@ -150,11 +198,13 @@ bool depth_agreement_report(const EvalOptions& o, const core::Dataset& dataset,
             {"frame_b", frame_b},
             {"ground_truth_median_m", gt_medians},
             {"estimate_median_m", est_medians}}}};
+  if (o.residual_grid) (*out)["residual_grid"] = residual_grid_report(gt_grid, est_grid);
   return true;
 }
 
 int run_eval(const EvalOptions& o) {
   std::string why;
+  if (o.residual_grid && o.dataset.path.empty()) return fail("--residual-grid needs --dataset (the depth it maps)");
   std::unique_ptr<core::Dataset> dataset;
   if (!o.dataset.path.empty()) {
     core::DatasetOptions options;
@@ -288,6 +338,9 @@ void add_eval_command(CLI::App& root, CommandList* commands) {
                   "With --dataset: frames between the two depths of a scored step")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  app->add_flag("--residual-grid", o->residual_grid,
+                "With --dataset: map the signed depth residual over the image and by depth (a "
+                "sensor's depth distortion shows as a pattern that grows with depth)");
   commands->push_back({app, [o] { return run_eval(*o); }});
 }
 

@@ -1,4 +1,5 @@
 // `fslam eval` end to end: the real binary on the TUM reference trajectories.
+#include <cmath>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -101,6 +102,47 @@ TEST(EvalCli, DepthAgreementFindsTheStepWhereAnEstimateJumps) {
   EXPECT_NE(err.find("depth agreement"), std::string::npos) << err;
   EXPECT_NE(run_command(fslam_bin() + " eval --est " + (dir / "est.txt").string(), &out, &err), 0);
   EXPECT_NE(err.find("--gt is required without --dataset"), std::string::npos) << err;
+}
+
+// --residual-grid maps the signed residual over the image: on a synthetic room, whose depth noise
+// is unbiased and whose trajectory is exact, the cells up to 2.5 m are flat to the noise of their
+// medians (redkitchen's Kinect shows +-10 mm there, docs/tracking.md).
+TEST(EvalCli, ResidualGridOfAnUnbiasedSensorIsFlat) {
+  const auto dir = test::fresh_temp_dir("eval_grid");
+  const std::string room = (dir / "room").string();
+  std::string out, err;
+  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + room + " --frames 12 --seed 3", &out, &err), 0)
+      << err;
+  ASSERT_EQ(run_command(fslam_bin() + " eval --est " + room + "/groundtruth.txt --dataset " + room +
+                            " --depth-delta 3 --residual-grid --json " + (dir / "g.json").string(),
+                        &out, &err),
+            0)
+      << out << err;
+  EXPECT_NE(out.find("residual grid"), std::string::npos) << out;
+  const auto grid = nlohmann::json::parse(std::ifstream(dir / "g.json")).at("depth_agreement").at("residual_grid");
+  EXPECT_EQ(grid.at("cols"), 8);
+  EXPECT_EQ(grid.at("rows"), 6);
+  std::size_t cells = 0;
+  double abs_sum = 0.0;
+  for (const auto& bin : grid.at("bins")) {
+    if (bin.at("max_depth_m").is_null() || bin.at("max_depth_m").get<double>() > 2.5) continue;
+    const bool near = bin.at("max_depth_m").get<double>() <= 2.0;
+    for (const char* side : {"ground_truth_median_m", "estimate_median_m"})
+      for (const auto& row : bin.at(side))
+        for (const auto& cell : row) {
+          if (cell.is_null()) continue;
+          ++cells;
+          abs_sum += std::abs(cell.get<double>());
+          if (near) EXPECT_LT(std::abs(cell.get<double>()), 0.002) << side;  // metres
+        }
+  }
+  ASSERT_GT(cells, 20u);
+  EXPECT_LT(abs_sum / static_cast<double>(cells), 0.002);  // metres, mean |median| over the cells
+  EXPECT_NE(run_command(fslam_bin() + " eval --est " + room + "/groundtruth.txt --gt " + room +
+                            "/groundtruth.txt --residual-grid",
+                        &out, &err),
+            0);
+  EXPECT_NE(err.find("--residual-grid needs --dataset"), std::string::npos) << err;
 }
 
 }  // namespace

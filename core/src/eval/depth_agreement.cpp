@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <utility>
 #include <vector>
@@ -43,9 +44,44 @@ bool has_depth(float z) { return std::isfinite(z) && z > 0.0f; }
 
 }  // namespace
 
+bool validate(const DepthResidualGrid& grid, std::string* why) {
+  if (grid.cols < 1 || grid.rows < 1) {
+    if (why) *why = "depth residual grid: cols and rows must be >= 1";
+    return false;
+  }
+  for (std::size_t i = 0; i < grid.depth_edges.size(); ++i) {
+    if (!std::isfinite(grid.depth_edges[i]) || (i > 0 && !(grid.depth_edges[i] > grid.depth_edges[i - 1]))) {
+      if (why) *why = "depth residual grid: depth_edges must be finite and increasing";
+      return false;
+    }
+  }
+  return true;
+}
+
+void DepthResidualGrid::add(int u, int v, int width, int height, double z_b, double dz) {
+  if (cells.empty()) cells.resize(static_cast<std::size_t>(bins() * rows * cols));
+  const int bin = static_cast<int>(std::upper_bound(depth_edges.begin(), depth_edges.end(), z_b) -
+                                   depth_edges.begin());
+  const int col = std::clamp(u * cols / width, 0, cols - 1);
+  const int row = std::clamp(v * rows / height, 0, rows - 1);
+  cells[static_cast<std::size_t>((bin * rows + row) * cols + col)].push_back(static_cast<float>(dz));
+}
+
+std::size_t DepthResidualGrid::count(int bin, int row, int col) const {
+  if (cells.empty()) return 0;
+  return cells[static_cast<std::size_t>((bin * rows + row) * cols + col)].size();
+}
+
+double DepthResidualGrid::median(int bin, int row, int col, std::size_t min_samples) const {
+  if (count(bin, row, col) < std::max<std::size_t>(min_samples, 1))
+    return std::numeric_limits<double>::quiet_NaN();
+  const std::vector<float>& c = cells[static_cast<std::size_t>((bin * rows + row) * cols + col)];
+  return percentile(std::vector<double>(c.begin(), c.end()), 0.5);
+}
+
 bool depth_agreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const PinholeCamera& camera,
                      const Eigen::Isometry3d& T_b_a, const DepthAgreementConfig& config,
-                     DepthAgreement* result, std::string* why) {
+                     DepthAgreement* result, std::string* why, DepthResidualGrid* grid) {
   if (!validate(config, why)) return false;
   std::string camera_why;
   if (!camera.is_valid(&camera_why)) {
@@ -58,6 +94,7 @@ bool depth_agreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const Pinho
     if (why) *why = "depth agreement: the relative pose is not finite";
     return false;
   }
+  if (grid != nullptr && !validate(*grid, why)) return false;
 
   std::vector<double> residuals;
   residuals.reserve(static_cast<std::size_t>(camera.width / config.stride + 1) *
@@ -74,7 +111,10 @@ bool depth_agreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const Pinho
       if (ub < 0 || vb < 0 || ub >= camera.width || vb >= camera.height) continue;
       const float z_b = depth_b.at<float>(vb, ub);
       if (!has_depth(z_b)) continue;
-      residuals.push_back(std::abs(static_cast<double>(z_b) - p_b.z()));
+      const double dz = static_cast<double>(z_b) - p_b.z();
+      residuals.push_back(std::abs(dz));
+      if (grid != nullptr && std::abs(dz) < config.inlier_distance)
+        grid->add(ub, vb, camera.width, camera.height, z_b, dz);
     }
   }
   if (residuals.empty()) {
@@ -94,7 +134,8 @@ bool depth_agreement_steps(const Dataset& dataset, const Trajectory& gt, const T
                            const AssociationConfig& association, std::size_t delta,
                            const DepthAgreementConfig& config,
                            std::vector<DepthAgreementStep>* steps, std::string* why,
-                           const std::function<void(std::size_t, std::size_t)>& progress) {
+                           const std::function<void(std::size_t, std::size_t)>& progress,
+                           DepthResidualGrid* gt_residuals, DepthResidualGrid* est_residuals) {
   steps->clear();
   if (delta < 1) {
     if (why) *why = "depth agreement: the step must be >= 1 frame";
@@ -146,10 +187,10 @@ bool depth_agreement_steps(const Dataset& dataset, const Trajectory& gt, const T
     step.frame_b = b->id;
     if (!depth_agreement(a->depth, b->depth, a->camera,
                          relative(gt, pairs[k].first, pairs[k + delta].first), config,
-                         &step.ground_truth, why) ||
+                         &step.ground_truth, why, gt_residuals) ||
         !depth_agreement(a->depth, b->depth, a->camera,
                          relative(est, pairs[k].second, pairs[k + delta].second), config,
-                         &step.estimate, why)) {
+                         &step.estimate, why, est_residuals)) {
       if (why) *why += " (frames " + std::to_string(a->id) + " -> " + std::to_string(b->id) + ")";
       return false;
     }

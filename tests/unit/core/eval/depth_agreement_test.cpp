@@ -73,6 +73,42 @@ TEST(DepthAgreement, TheTrueRelativePoseAgreesAndAWrongOneDoesNot) {
   EXPECT_LT(wrong.inlier_fraction, 0.05);
 }
 
+// A depth offset fixed to the pixels (here +15 mm over the left half of frame b) shows in the
+// residual grid where the samples land, and only there; an invalid grid is refused.
+TEST(DepthAgreement, ResidualGridMapsADepthOffsetFixedToThePixels) {
+  const PinholeCamera c = small_camera();
+  const Eigen::Isometry3d Ta = camera_pose(0.0), Tb = camera_pose(1.0);
+  const cv::Mat a = plane_depth(c, Ta);
+  cv::Mat b = plane_depth(c, Tb);
+  for (int v = 0; v < c.height; ++v)
+    for (int u = 0; u < c.width / 2; ++u) b.at<float>(v, u) += 0.015f;
+  DepthAgreementConfig config;
+  config.stride = 1;
+  DepthResidualGrid grid;
+  grid.cols = 2;
+  grid.rows = 1;
+  grid.depth_edges = {1.0, 3.0};  // the plane is about 1.7 m away: every sample in bin 1
+  DepthAgreement result;
+  std::string why;
+  ASSERT_TRUE(depth_agreement(a, b, c, Tb.inverse() * Ta, config, &result, &why, &grid)) << why;
+  EXPECT_GT(grid.count(1, 0, 0), 500u);
+  EXPECT_GT(grid.count(1, 0, 1), 500u);
+  EXPECT_EQ(grid.count(0, 0, 0) + grid.count(0, 0, 1) + grid.count(2, 0, 0) + grid.count(2, 0, 1), 0u);
+  EXPECT_NEAR(grid.median(1, 0, 0, 100), 0.015, 0.004);  // metres; half a pixel of depth slope
+  EXPECT_NEAR(grid.median(1, 0, 1, 100), 0.0, 0.004);
+  EXPECT_TRUE(std::isnan(grid.median(0, 0, 0, 100)));  // no sample nearer than 1 m
+  EXPECT_EQ(grid.count(1, 0, 0) + grid.count(1, 0, 1), result.samples);  // all within 5 cm
+
+  DepthResidualGrid bad;
+  bad.cols = 0;
+  EXPECT_FALSE(depth_agreement(a, b, c, Tb.inverse() * Ta, config, &result, &why, &bad));
+  EXPECT_NE(why.find("cols"), std::string::npos) << why;
+  bad = DepthResidualGrid{};
+  bad.depth_edges = {2.0, 1.0};
+  EXPECT_FALSE(depth_agreement(a, b, c, Tb.inverse() * Ta, config, &result, &why, &bad));
+  EXPECT_NE(why.find("increasing"), std::string::npos) << why;
+}
+
 TEST(DepthAgreement, MissingDepthIsSkippedAndBadInputIsAnError) {
   const PinholeCamera c = small_camera();
   const cv::Mat a = plane_depth(c, camera_pose(0.0));

@@ -32,11 +32,34 @@ struct DepthAgreement {
   double inlier_fraction = 0.0;  // share of `samples` with |dz| < inlier_distance
 };
 
+// The signed residuals z_b(pixel) - z of the moved sample (agreeing samples only: |dz| under
+// inlier_distance), binned by the pixel of b they land on (a cols x rows grid over the image) and
+// by z_b. Over many steps a wrong pose averages out while a sensor's depth distortion, fixed to
+// the pixel and growing with depth, stays: the median per cell then maps it (docs/evaluation.md,
+// "Residual grid"). Bins: below depth_edges[0], between consecutive edges, above the last.
+struct DepthResidualGrid {
+  int cols = 8;
+  int rows = 6;
+  std::vector<double> depth_edges = {1.0, 1.5, 2.0, 2.5, 3.0};  // metres, increasing
+  std::vector<std::vector<float>> cells;  // [(bin * rows + row) * cols + col]: metres
+
+  int bins() const { return static_cast<int>(depth_edges.size()) + 1; }
+  // Adds one residual dz (metres) of a sample landing at pixel (u, v) of a width x height image
+  // with depth z_b.
+  void add(int u, int v, int width, int height, double z_b, double dz);
+  // The median of a cell, metres; NaN with fewer than min_samples.
+  double median(int bin, int row, int col, std::size_t min_samples) const;
+  std::size_t count(int bin, int row, int col) const;
+};
+
+bool validate(const DepthResidualGrid& grid, std::string* why);
+
 // Both depths CV_32FC1 in metres (0 or non-finite = missing), the camera's size. Fails on a
 // wrong type or size, an invalid camera or config, or when no sample lands on depth in b.
+// residuals (optional): the step's signed residuals are added to it.
 bool depth_agreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const PinholeCamera& camera,
                      const Eigen::Isometry3d& T_b_a, const DepthAgreementConfig& config,
-                     DepthAgreement* result, std::string* why);
+                     DepthAgreement* result, std::string* why, DepthResidualGrid* residuals = nullptr);
 
 class Dataset;
 
@@ -52,11 +75,14 @@ struct DepthAgreementStep {
 // Steps (k, k + delta) over the poses `association` pairs between `gt` and `est`, in time order;
 // each pose's frame is the dataset's frame at the estimate's timestamp (within the association's
 // max_difference). Fails when a frame is missing or unreadable, or no step can be scored.
-// `progress(done, total)` is called after each step when given.
+// `progress(done, total)` is called after each step when given. gt_residuals / est_residuals
+// (optional): every step's signed residuals under each side's poses.
 bool depth_agreement_steps(const Dataset& dataset, const Trajectory& gt, const Trajectory& est,
                            const AssociationConfig& association, std::size_t delta,
                            const DepthAgreementConfig& config,
                            std::vector<DepthAgreementStep>* steps, std::string* why,
-                           const std::function<void(std::size_t, std::size_t)>& progress = {});
+                           const std::function<void(std::size_t, std::size_t)>& progress = {},
+                           DepthResidualGrid* gt_residuals = nullptr,
+                           DepthResidualGrid* est_residuals = nullptr);
 
 }  // namespace fslam::core
