@@ -53,6 +53,14 @@ class SynthPipeline : public ::testing::Test {
     core::RgbdFrame frame;
     return dataset.load(i, &frame, why) && pipeline->process_frame(frame, result, why);
   }
+  // Tracking against the Gaussian map, new Gaussians seeded from the tracker's source points.
+  static core::PipelineConfig gaussian_target_config(int iterations_per_keyframe) {
+    core::PipelineConfig config;
+    config.tracker.target = core::TrackingTarget::gaussians;
+    config.mapper.insert_from = core::MapperConfig::InsertFrom::source;
+    config.mapper.iterations_per_keyframe = iterations_per_keyframe;
+    return config;
+  }
   static std::string dir_;
   static int status_;
   static std::string log_;
@@ -183,11 +191,8 @@ TEST_F(SynthPipeline, GaussianTargetWaitsForTheKeyframesMapVersionWhenAsked) {
   std::string why;
   const auto dataset = frames("0:30", &why);
   ASSERT_TRUE(dataset) << why;
-  core::PipelineConfig config;
-  config.tracker.target = core::TrackingTarget::gaussians;
+  core::PipelineConfig config = gaussian_target_config(60);
   config.tracker.map_target.wait_for_mapper = true;
-  config.mapper.insert_from = core::MapperConfig::InsertFrom::source;
-  config.mapper.iterations_per_keyframe = 60;
   core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
   bool mapping_ok = false;
   std::string mapping_why;
@@ -217,10 +222,7 @@ TEST_F(SynthPipeline, GaussianTargetBridgesTheKeyframesTheMapperHasNotMapped) {
   std::string why;
   const auto dataset = frames("0:60", &why);
   ASSERT_TRUE(dataset) << why;
-  core::PipelineConfig config;
-  config.tracker.target = core::TrackingTarget::gaussians;
-  config.mapper.insert_from = core::MapperConfig::InsertFrom::source;
-  config.mapper.iterations_per_keyframe = 10;
+  const core::PipelineConfig config = gaussian_target_config(10);
   core::SlamPipeline pipeline(config, core::make_cpu_rasterizer());
   std::mutex mutex;
   std::condition_variable changed;

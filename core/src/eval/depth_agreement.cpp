@@ -64,18 +64,18 @@ void DepthResidualGrid::add(int u, int v, int width, int height, double z_b, dou
                                    depth_edges.begin());
   const int col = std::clamp(u * cols / width, 0, cols - 1);
   const int row = std::clamp(v * rows / height, 0, rows - 1);
-  cells[static_cast<std::size_t>((bin * rows + row) * cols + col)].push_back(static_cast<float>(dz));
+  cells[index(bin, row, col)].push_back(static_cast<float>(dz));
 }
 
 std::size_t DepthResidualGrid::count(int bin, int row, int col) const {
   if (cells.empty()) return 0;
-  return cells[static_cast<std::size_t>((bin * rows + row) * cols + col)].size();
+  return cells[index(bin, row, col)].size();
 }
 
 double DepthResidualGrid::median(int bin, int row, int col, std::size_t min_samples) const {
   if (count(bin, row, col) < std::max<std::size_t>(min_samples, 1))
     return std::numeric_limits<double>::quiet_NaN();
-  const std::vector<float>& c = cells[static_cast<std::size_t>((bin * rows + row) * cols + col)];
+  const std::vector<float>& c = cells[index(bin, row, col)];
   return percentile(std::vector<double>(c.begin(), c.end()), 0.5);
 }
 

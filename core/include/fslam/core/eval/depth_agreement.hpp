@@ -41,7 +41,7 @@ struct DepthResidualGrid {
   int cols = 8;
   int rows = 6;
   std::vector<double> depth_edges = {1.0, 1.5, 2.0, 2.5, 3.0};  // metres, increasing
-  std::vector<std::vector<float>> cells;  // [(bin * rows + row) * cols + col]: metres
+  std::vector<std::vector<float>> cells;  // [(bin * rows + row) * cols + col]: metres, filled by add
 
   int bins() const { return static_cast<int>(depth_edges.size()) + 1; }
   // Adds one residual dz (metres) of a sample landing at pixel (u, v) of a width x height image
@@ -50,16 +50,21 @@ struct DepthResidualGrid {
   // The median of a cell, metres; NaN with fewer than min_samples.
   double median(int bin, int row, int col, std::size_t min_samples) const;
   std::size_t count(int bin, int row, int col) const;
+
+ private:
+  std::size_t index(int bin, int row, int col) const {
+    return static_cast<std::size_t>((bin * rows + row) * cols + col);
+  }
 };
 
 bool validate(const DepthResidualGrid& grid, std::string* why);
 
 // Both depths CV_32FC1 in metres (0 or non-finite = missing), the camera's size. Fails on a
 // wrong type or size, an invalid camera or config, or when no sample lands on depth in b.
-// residuals (optional): the step's signed residuals are added to it.
+// grid (optional): the step's signed residuals are added to it.
 bool depth_agreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const PinholeCamera& camera,
                      const Eigen::Isometry3d& T_b_a, const DepthAgreementConfig& config,
-                     DepthAgreement* result, std::string* why, DepthResidualGrid* residuals = nullptr);
+                     DepthAgreement* result, std::string* why, DepthResidualGrid* grid = nullptr);
 
 class Dataset;
 
