@@ -528,6 +528,8 @@ void Client::listen() {
       update.resident_bytes = st.resident_bytes;
       update.track_ms_p50 = st.track_ms_p50;
       update.track_ms_p99 = st.track_ms_p99;
+      update.track_cpu_ms_p50 = st.track_cpu_ms_p50;
+      update.track_cpu_ms_p99 = st.track_cpu_ms_p99;
       update.decode_ms_p50 = st.decode_ms_p50;
       update.decode_ms_p99 = st.decode_ms_p99;
       update.map_ms_p50 = st.map_ms_p50;

@@ -70,18 +70,19 @@ int run_status(const StatusArgs& args) {
     return fail("no status from a server on prefix '" + args.client.prefix + "' within " + seconds +
                 " s (is fslam-server running with that prefix?)");
   }
-  std::printf("%-16s %-14s %-8s %-6s %9s %8s %8s %9s %9s %5s %8s %8s %31s %8s\n", "map", "session", "mode", "policy",
+  std::printf("%-16s %-14s %-8s %-6s %9s %8s %8s %9s %9s %5s %8s %8s %40s %8s\n", "map", "session", "mode", "policy",
               "gaussians", "version", "tracked", "received", "processed", "queue", "skipped", "dropped",
-              "ms p50/p99: decode track map", "rss MiB");
+              "ms p50/p99: decode track (cpu) map", "rss MiB");
   for (const auto& [key, s] : latest) {
     // A session's report (a localise session's map may have no streaming session of its own).
     const bool session = !s.session.empty();
-    char timing[64] = "-";
+    char timing[96] = "-";
     if (session) {
-      std::snprintf(timing, sizeof timing, "%.0f/%.0f %.0f/%.0f %.0f/%.0f", s.decode_ms_p50,
-                    s.decode_ms_p99, s.track_ms_p50, s.track_ms_p99, s.map_ms_p50, s.map_ms_p99);
+      std::snprintf(timing, sizeof timing, "%.0f/%.0f %.0f/%.0f (%.0f/%.0f) %.0f/%.0f", s.decode_ms_p50,
+                    s.decode_ms_p99, s.track_ms_p50, s.track_ms_p99, s.track_cpu_ms_p50,
+                    s.track_cpu_ms_p99, s.map_ms_p50, s.map_ms_p99);
     }
-    std::printf("%-16s %-14s %-8s %-6s %9llu %8llu %8llu %9llu %9llu %5u %8llu %8llu %31s %8.0f\n",
+    std::printf("%-16s %-14s %-8s %-6s %9llu %8llu %8llu %9llu %9llu %5u %8llu %8llu %40s %8.0f\n",
                 s.map_name.c_str(), session ? s.session.c_str() : "(idle)",
                 session ? s.mode.c_str() : "-", session ? s.frame_policy.c_str() : "-",
                 static_cast<unsigned long long>(s.map_gaussians),

@@ -7,6 +7,7 @@
 
 #include <tbb/task_arena.h>
 
+#include "fslam/core/compute/thread_clock.hpp"
 #include "fslam/core/error.hpp"
 #include "fslam/core/eval/percentile.hpp"
 #include "fslam/server/backend_factory.hpp"
@@ -48,6 +49,7 @@ struct Sessions::PreparedFrame {
   core::PreparedFrame frame;
   Clock::time_point ready;
   double decode_ms = 0, queue_ms = 0, prepare_ms = 0;
+  double prepare_cpu_ms = 0;  // the preparing thread's CPU time for it
 };
 
 // One streaming session: its waiting frames and its threads. The pipeline is its map's (mode
@@ -80,7 +82,7 @@ struct Sessions::Session {
   std::uint64_t received = 0, processed = 0, dropped = 0, skipped = 0;
   std::string last_drop_reason, last_skip_reason;
   // The latest stage times, for p50 / p99 (each bounded to kTimingWindow entries).
-  std::deque<double> decode_ms, queue_ms, track_ms, map_ms;
+  std::deque<double> decode_ms, queue_ms, track_ms, track_cpu_ms, map_ms;
   bool at_capacity_reported = false;  // mapper.max_gaussians reached, and said so
 };
 
@@ -461,6 +463,8 @@ std::vector<SessionReport> Sessions::reports() const {
     st.queue_ms_p99 = p(s->queue_ms, 0.99);
     st.track_ms_p50 = p(s->track_ms, 0.5);
     st.track_ms_p99 = p(s->track_ms, 0.99);
+    st.track_cpu_ms_p50 = p(s->track_cpu_ms, 0.5);
+    st.track_cpu_ms_p99 = p(s->track_cpu_ms, 0.99);
     st.map_ms_p50 = p(s->map_ms, 0.5);
     st.map_ms_p99 = p(s->map_ms, 0.99);
     st.mapping_queue = static_cast<std::uint32_t>(s->pipeline->queued_keyframes());
@@ -557,8 +561,10 @@ bool Sessions::prepare_one(Session* s, QueuedFrame&& queued, PreparedFrame* prep
   const bool decoded = decode_frame(queued.frame, &frame, &why);
   prepared->decode_ms = ms_since(t_decode);
   const Clock::time_point t_prepare = Clock::now();
+  const double cpu_prepare = core::thread_cpu_ms();
   const bool ready = decoded && s->pipeline->prepare_frame(std::move(frame), &prepared->frame, &why);
   prepared->prepare_ms = ms_since(t_prepare);
+  prepared->prepare_cpu_ms = core::thread_cpu_ms() - cpu_prepare;
   prepared->ready = Clock::now();
   if (ready) return true;
   const std::string message = "frame " + std::to_string(queued.frame.frame_id) + ": " + why;
@@ -646,8 +652,10 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
   core::TrackingResult result;
   std::string why;
   const Clock::time_point t0 = Clock::now();
+  const double cpu0 = core::thread_cpu_ms();
   const bool tracked = pipeline.track_prepared(std::move(prepared.frame), &result, &why);
   const double track_ms = prepared.prepare_ms + ms_since(t0);
+  const double track_cpu_ms = prepared.prepare_cpu_ms + (core::thread_cpu_ms() - cpu0);
   {
     std::lock_guard<std::mutex> lock(s->mutex);
     ++s->processed;
@@ -655,6 +663,7 @@ void Sessions::track_one(Session* s, PreparedFrame&& prepared) {
     record(&s->decode_ms, prepared.decode_ms);
     record(&s->queue_ms, queue_ms);
     record(&s->track_ms, track_ms);
+    record(&s->track_cpu_ms, track_cpu_ms);
   }
   if (!tracked) {
     replies_.result(s->name.c_str(), frame_id, s->map->name, why);

@@ -189,12 +189,18 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
   // Declared before the client: its listener thread calls the callbacks until it is destroyed.
   std::mutex mutex;
   std::map<std::uint64_t, client::PoseUpdate> outcomes;
+  client::StatusUpdate status;  // the session's newest report
   client::Client c(options_for(prefix_));
   c.on_pose([&](const client::PoseUpdate& p) {
     if (p.session != "live") return;
     std::lock_guard<std::mutex> lock(mutex);
     EXPECT_EQ(outcomes.count(p.frame_id), 0u) << "two outcomes for frame " << p.frame_id;
     outcomes[p.frame_id] = p;
+  });
+  c.on_status([&](const client::StatusUpdate& s) {
+    if (s.session != "live") return;
+    std::lock_guard<std::mutex> lock(mutex);
+    status = s;
   });
   client::SessionOptions live;
   live.policy = client::FramePolicy::live;
@@ -208,6 +214,27 @@ TEST_F(Service, LiveSessionSkipsToTheNewestFrameAndReportsEverySkip) {
       if (outcomes.size() >= kFrames) break;
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  // The status (about once a second) times the tracked frames: the server threads' CPU time
+  // per frame is some of it and never more than the wall time (per frame, so per percentile).
+  std::size_t tracked = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& [id, p] : outcomes) tracked += p.skipped ? 0 : 1;
+  }
+  for (int k = 0; k < test::scaled_s(50); ++k) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (status.frames_processed >= tracked) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(status.frames_processed, tracked);
+    EXPECT_GT(status.track_cpu_ms_p50, 0.0f);
+    EXPECT_LE(status.track_cpu_ms_p50, status.track_ms_p50 + 0.5f);  // ms; clock granularity
+    EXPECT_LE(status.track_cpu_ms_p99, status.track_ms_p99 + 0.5f);
   }
   // The close drains the session's keyframes through the mapper (SCHED_IDLE unless starved):
   // not what this test checks, and under ASan with another test beside it past 120 s.

@@ -41,6 +41,7 @@ json status_json(const StatusUpdate& s) {
           {"frames_tracked", s.frames_tracked},
           {"queue_depth", s.queue_depth},
           {"track_ms_p50", s.track_ms_p50},
+          {"track_cpu_ms_p50", s.track_cpu_ms_p50},
           {"map_ms_p50", s.map_ms_p50},
           {"last_drop_reason", s.last_drop_reason}};
 }

@@ -102,7 +102,8 @@ struct StatusUpdate {
   std::uint32_t mapping_queue = 0;       // keyframes waiting for the mapper
   std::uint64_t keyframes_left_out = 0;  // real time: keyframes the mapper never got
   float decode_ms_p50 = 0, decode_ms_p99 = 0;  // per frame
-  float track_ms_p50 = 0, track_ms_p99 = 0;    // per frame
+  float track_ms_p50 = 0, track_ms_p99 = 0;    // per frame, wall
+  float track_cpu_ms_p50 = 0, track_cpu_ms_p99 = 0;  // per frame, the server threads' CPU time
   float map_ms_p50 = 0, map_ms_p99 = 0;        // per keyframe
   bool streaming = false;               // false: a map no session streams into (session empty)
   std::uint64_t map_version = 0, frames_tracked = 0;
