@@ -327,7 +327,7 @@ std::size_t SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
       if (seen[k] < kMinViewsToHoldMean) origins[k] = PointOrigin::observation;
   }
   target->insert(points, centre, origins);
-  std::deque<BridgeKeyframe> bridge;
+  std::deque<KeyframePoints> bridge;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     bridge = bridge_;
@@ -341,7 +341,7 @@ std::size_t SlamPipeline::publish_map_target(const MapperKeyframe& kf) {
   ++map_target_serial_;
   map_target_published_.notify_all();
   return static_cast<std::size_t>(std::count_if(
-      bridge.begin(), bridge.end(), [&](const BridgeKeyframe& b) { return b.frame_id > kf.frame_id; }));
+      bridge.begin(), bridge.end(), [&](const KeyframePoints& b) { return b.frame_id > kf.frame_id; }));
 }
 
 bool SlamPipeline::tracking_pyramid_is_mappers() const {

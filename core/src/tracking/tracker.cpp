@@ -51,9 +51,9 @@ const char* to_string(TrackingTarget target) {
   return target == TrackingTarget::gaussians ? "gaussians" : "points";
 }
 
-std::int64_t bridge_keyframes(const std::deque<BridgeKeyframe>& bridge, std::int64_t after_id, LocalMap* target) {
+std::int64_t bridge_keyframes(const std::deque<KeyframePoints>& bridge, std::int64_t after_id, LocalMap* target) {
   std::int64_t newest = after_id;
-  for (const BridgeKeyframe& kf : bridge) {
+  for (const KeyframePoints& kf : bridge) {
     if (kf.frame_id <= after_id) continue;
     target->insert(transformed(*kf.points_camera, kf.T_world_camera), kf.T_world_camera.translation().cast<float>());
     newest = kf.frame_id;
@@ -186,11 +186,11 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
         !latent->empty())
       refresh_map_features(*latent, frame.camera, frame.depth, T_world_camera,
                            config_.gicp.max_correspondence_distance, &map_);
-    keyframes_.push_back({frame.id, T_world_camera, source});
+    keyframes_.push_back({frame.id, T_world_camera, std::make_shared<const GaussianPoints>(source)});
     if (config_.relocalisation.enabled && describe())
       relocaliser_.add_keyframe(frame.id, T_world_camera, std::move(description));
     if (config_.target == TrackingTarget::gaussians) {
-      unmapped_.push_back({frame.id, T_world_camera, std::make_shared<const GaussianPoints>(source)});
+      unmapped_.push_back(keyframes_.back());  // the same points, shared
       // A mapper this far behind is not waited for: the oldest unmapped keyframes leave the
       // bridge (they are still in the current target until the next one replaces it).
       while (unmapped_.size() > kMaxUnmappedKeyframes) unmapped_.pop_front();
@@ -295,7 +295,7 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
     bool recovered = false;
     for (auto kf = keyframes_.rbegin(); kf != keyframes_.rend() && !recovered; ++kf) {
       KdTreeTarget target;
-      if (!target.build(transformed(kf->points_camera, kf->T_world_camera))) continue;
+      if (!target.build(transformed(*kf->points_camera, kf->T_world_camera))) continue;
       GicpResult retry = align(source, target, *T_last_, wide, SerialReduction{});
       if (!is_lost(retry)) {
         gicp = retry;

@@ -287,7 +287,7 @@ TEST(MapTarget, BridgingSplitBetweenBuilderAndTrackerGivesTheSameTarget) {
   std::vector<GaussianPoints> raw;
   LocalMap target;
   ASSERT_NO_FATAL_FAILURE(track_two_keyframes_and_make_half_target(&tracker, config, &raw, &target));
-  const std::deque<BridgeKeyframe> unmapped = tracker.unmapped_keyframes();
+  const std::deque<KeyframePoints> unmapped = tracker.unmapped_keyframes();
   ASSERT_EQ(unmapped.size(), 2u);
   ASSERT_EQ(unmapped[0].frame_id, 7);
   ASSERT_EQ(unmapped[1].frame_id, 8);
@@ -300,8 +300,8 @@ TEST(MapTarget, BridgingSplitBetweenBuilderAndTrackerGivesTheSameTarget) {
   for (const std::int64_t builder_through : {std::int64_t{8}, std::int64_t{7}}) {
     LocalMap built = target;
     built.set_fuse(config.local_map.fuse);
-    std::deque<BridgeKeyframe> known;
-    for (const BridgeKeyframe& kf : unmapped)
+    std::deque<KeyframePoints> known;
+    for (const KeyframePoints& kf : unmapped)
       if (kf.frame_id <= builder_through) known.push_back(kf);
     EXPECT_EQ(bridge_keyframes(known, 6, &built), builder_through);
     tracker.set_map_target(built, 6, builder_through);

@@ -200,7 +200,7 @@ class SlamPipeline {
   std::int64_t map_target_bridged_ = -1;                // guarded by mutex_
   // The tracker's unmapped keyframes as of its last keyframe, for the mapping thread to bridge
   // into the target it builds (the tracking thread then bridges only what is newer).
-  std::deque<BridgeKeyframe> bridge_;                   // guarded by mutex_
+  std::deque<KeyframePoints> bridge_;                   // guarded by mutex_
   std::uint64_t map_target_serial_ = 0;                 // guarded by mutex_
   std::uint64_t map_target_taken_ = 0;                  // tracking side only
   std::int64_t keyframe_awaited_ = -1;  // tracking side: map_target.wait_for_mapper waits for it

@@ -105,9 +105,10 @@ struct PreparedSource {
   double preprocess_ms = 0.0;
 };
 
-// A keyframe no map version contains yet (tracker.target = gaussians). Its points are shared and
-// never change, so the mapping thread can bridge them into a target it builds.
-struct BridgeKeyframe {
+// A keyframe's pose and its camera-frame points, shared and never changed: the tracker keeps the
+// recent ones for recovery, and with tracker.target = gaussians those no map version contains
+// yet, which the mapping thread can bridge into a target it builds.
+struct KeyframePoints {
   std::int64_t frame_id = 0;
   Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();
   std::shared_ptr<const GaussianPoints> points_camera;
@@ -119,7 +120,7 @@ struct BridgeKeyframe {
 // Gaussian, PointOrigin::map_gaussian, takes its information and keeps its mean); the rest fill
 // what the target lacks, fused among themselves. Returns the newest frame_id inserted, or
 // `after_id` when none is newer.
-std::int64_t bridge_keyframes(const std::deque<BridgeKeyframe>& bridge, std::int64_t after_id, LocalMap* target);
+std::int64_t bridge_keyframes(const std::deque<KeyframePoints>& bridge, std::int64_t after_id, LocalMap* target);
 
 class Tracker {
  public:
@@ -155,7 +156,7 @@ class Tracker {
   // `bridged_through`; the tracker adds only the newer ones.
   void set_map_target(LocalMap target, std::int64_t last_keyframe_id, std::int64_t bridged_through = -1);
   // target = gaussians: the keyframes no map target contains yet, oldest first (bounded).
-  const std::deque<BridgeKeyframe>& unmapped_keyframes() const { return unmapped_; }
+  const std::deque<KeyframePoints>& unmapped_keyframes() const { return unmapped_; }
   // Starts in an existing map (session modes localise and extend, issue 20): `map` is the target
   // (localisation_target of the map's Gaussians) and `keyframes` the relocaliser's; the first
   // frame, and every frame until one is found, relocalises with no prior pose. localise: the
@@ -170,11 +171,6 @@ class Tracker {
   void reset();
 
  private:
-  struct Keyframe {
-    std::int64_t frame_id;
-    Eigen::Isometry3d T_world_camera;
-    GaussianPoints points_camera;  // kept for recovery re-registration
-  };
   bool is_keyframe(const Eigen::Isometry3d& T_world_camera, const GicpResult& gicp) const;
   bool is_lost(const GicpResult& gicp) const;
   GicpResult register_frame(const GaussianPoints& source, const Eigen::Isometry3d& T_init) const;
@@ -185,11 +181,11 @@ class Tracker {
   Eigen::Isometry3d T_initial_ = Eigen::Isometry3d::Identity();
   std::optional<Eigen::Isometry3d> T_last_;       // last tracked pose (world <- camera)
   std::optional<Eigen::Isometry3d> T_velocity_;   // T_{k-2}^-1 T_{k-1}
-  std::deque<Keyframe> keyframes_;                // most recent last, bounded
+  std::deque<KeyframePoints> keyframes_;          // most recent last, bounded (recovery)
 
   // target = gaussians: keyframes no map target contains yet, oldest first (their points are
   // added to each new target).
-  std::deque<BridgeKeyframe> unmapped_;
+  std::deque<KeyframePoints> unmapped_;
   Relocaliser relocaliser_;                       // every keyframe, described (bounded)
   bool localising_ = false;                       // start_in localise: map and keyframes fixed
   bool relocalise_first_ = false;                 // start_in: no pose until relocalised
