@@ -248,6 +248,7 @@ void add_pipeline_fields(SettingsTable<core::PipelineConfig>* f) {
   gicp.add("use_features", &Gicp::use_features);
   gicp.add("feature_gamma", &Gicp::feature_gamma);
   gicp.add("feature_noise", &Gicp::feature_noise);
+  gicp.add("feature_residual_weight", &Gicp::feature_residual_weight);
 
   using Keyframe = core::KeyframeConfig;
   const auto keyframe = section(f, "tracker.keyframe",

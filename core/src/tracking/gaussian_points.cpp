@@ -13,6 +13,7 @@ void GaussianPoints::clear() {
   features.clear();
   feature_dim = 0;
   feature_spread.clear();
+  feature_gradient.clear();
 }
 
 // Only the arrays in use grow: optional opacities and features stay empty when absent, so that
@@ -44,6 +45,9 @@ bool GaussianPoints::is_consistent(std::string* why) const {
   if (!feature_spread.empty() && feature_spread.size() != n)
     return fail(why, std::to_string(n) + " means but " + std::to_string(feature_spread.size()) +
                          " feature spreads");
+  if (!feature_gradient.empty() && feature_gradient.size() != n * static_cast<std::size_t>(feature_dim) * 3)
+    return fail(why, std::to_string(feature_gradient.size()) + " feature-gradient values for " +
+                         std::to_string(n) + " points of dimension " + std::to_string(feature_dim));
   for (std::size_t i = 0; i < n; ++i) {
     if (!means[i].allFinite()) return fail(why, "mean " + std::to_string(i) + " is not finite");
     if (!covariances[i].allFinite())

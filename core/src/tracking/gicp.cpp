@@ -37,6 +37,9 @@ bool GicpConfig::is_valid(std::string* why) const {
   if (!(std::isfinite(feature_noise) && feature_noise > 0.0))
     return fail(why, "gicp.feature_noise must be finite and positive, got " +
                          std::to_string(feature_noise));
+  if (!(std::isfinite(feature_residual_weight) && feature_residual_weight >= 0.0))
+    return fail(why, "gicp.feature_residual_weight must be finite and non-negative, got " +
+                         std::to_string(feature_residual_weight));
   return true;
 }
 

@@ -30,30 +30,47 @@ void sample_latent(const PlanarImage& latent, const PinholeCamera& camera,
 }  // namespace
 
 void sample_point_features(const PlanarImage& latent, const PinholeCamera& camera,
-                           GaussianPoints* points) {
+                           GaussianPoints* points, bool gradient) {
   const int d = latent.channels;
+  const std::size_t dn = static_cast<std::size_t>(d);
   points->feature_dim = d;
-  points->features.assign(points->size() * static_cast<std::size_t>(d), 0.0f);
+  points->features.assign(points->size() * dn, 0.0f);
   points->feature_spread.assign(points->size(), 0.0f);
+  points->feature_gradient.assign(gradient ? points->size() * dn * 3 : 0, 0.0f);
   // One latent cell in frame pixels along u and v.
   const Eigen::Vector2d cell(static_cast<double>(camera.width) / latent.width,
                              static_cast<double>(camera.height) / latent.height);
   const Eigen::Vector2d steps[4] = {
       {cell.x(), 0.0}, {-cell.x(), 0.0}, {0.0, cell.y()}, {0.0, -cell.y()}};
-  std::vector<float> neighbour(static_cast<std::size_t>(d));
+  std::vector<float> neighbours(4 * dn);
   for (std::size_t i = 0; i < points->size(); ++i) {
     const Eigen::Vector3d p = points->means[i].cast<double>();
     if (!(p.z() > 0)) continue;
     const Eigen::Vector2d uv = camera.project(p);
-    float* f = &points->features[i * static_cast<std::size_t>(d)];
+    float* f = &points->features[i * dn];
     sample_latent(latent, camera, uv, f);
     // The spread: mean of ||f(uv + step) - f(uv)||^2 over the four one-cell steps.
     double spread = 0.0;
-    for (const Eigen::Vector2d& step : steps) {
-      sample_latent(latent, camera, uv + step, neighbour.data());
-      for (int c = 0; c < d; ++c) spread += (neighbour[c] - f[c]) * (neighbour[c] - f[c]);
+    for (int k = 0; k < 4; ++k) {
+      float* g = &neighbours[k * dn];
+      sample_latent(latent, camera, uv + steps[k], g);
+      for (int c = 0; c < d; ++c) spread += (g[c] - f[c]) * (g[c] - f[c]);
     }
     points->feature_spread[i] = static_cast<float>(spread / 4.0);
+    if (!gradient) continue;
+    // d f / d X = (d f / d uv) (d uv / d X): central differences over one cell each way, through
+    // the pinhole projection's Jacobian at the point (pixels per metre).
+    const double iz = 1.0 / p.z();
+    const double du_dx = camera.fx * iz, du_dz = -camera.fx * p.x() * iz * iz;
+    const double dv_dy = camera.fy * iz, dv_dz = -camera.fy * p.y() * iz * iz;
+    float* G = &points->feature_gradient[i * dn * 3];
+    for (int c = 0; c < d; ++c) {
+      const double gu = (neighbours[c] - neighbours[dn + c]) / (2.0 * cell.x());
+      const double gv = (neighbours[2 * dn + c] - neighbours[3 * dn + c]) / (2.0 * cell.y());
+      G[3 * c + 0] = static_cast<float>(gu * du_dx);
+      G[3 * c + 1] = static_cast<float>(gv * dv_dy);
+      G[3 * c + 2] = static_cast<float>(gu * du_dz + gv * dv_dz);
+    }
   }
 }
 

@@ -145,7 +145,8 @@ bool Tracker::preprocess(const RgbdFrame& frame, const PlanarImage* latent, Prep
   // Depth -> camera-frame Gaussian points (source set of eq. gicp_sets), with the frame's
   // features at their pixels (f_s of eq. feat_dist).
   if (!preprocess_frame(frame, config_.preprocess, &out->points, &out->stats, why)) return false;
-  if (latent != nullptr && !latent->empty()) sample_point_features(*latent, frame.camera, &out->points);
+  if (latent != nullptr && !latent->empty())
+    sample_point_features(*latent, frame.camera, &out->points, config_.gicp.feature_residual_weight > 0.0);
   out->preprocess_ms = steady_ms() - t0;
   return true;
 }
@@ -186,7 +187,11 @@ bool Tracker::track_prepared(const RgbdFrame& frame, const PreparedSource& prepa
         !latent->empty())
       refresh_map_features(*latent, frame.camera, frame.depth, T_world_camera,
                            config_.gicp.max_correspondence_distance, &map_);
-    keyframes_.push_back({frame.id, T_world_camera, std::make_shared<const GaussianPoints>(source)});
+    // Stored keyframes are registration targets only: the frame's feature gradients stay behind.
+    auto points = std::make_shared<GaussianPoints>(source);
+    points->feature_gradient.clear();
+    points->feature_gradient.shrink_to_fit();
+    keyframes_.push_back({frame.id, T_world_camera, std::move(points)});
     if (config_.relocalisation.enabled && describe())
       relocaliser_.add_keyframe(frame.id, T_world_camera, std::move(description));
     if (config_.target == TrackingTarget::gaussians) {

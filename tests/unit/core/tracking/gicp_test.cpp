@@ -20,6 +20,7 @@
 #include "fslam/core/tracking/gicp_impl.hpp"
 #include "fslam/core/tracking/kdtree_target.hpp"
 #include "fslam/core/tracking/local_map.hpp"
+#include "fslam/core/tracking/point_features.hpp"
 #include "fslam/core/tracking/preprocess.hpp"
 #include "test_support.hpp"
 
@@ -257,6 +258,75 @@ TEST_P(GicpBackend, SystemGradientMatchesCentralDifferencesOfCost) {
   EXPECT_LT((2.0 * system.b - numeric).norm(), 1e-5 * std::max(1.0, numeric.norm()))
       << "analytic " << (2.0 * system.b).transpose() << "\nnumeric  " << numeric.transpose();
   EXPECT_LT((system.H - system.H.transpose()).norm(), 1e-9 * system.H.norm());
+
+  // The feature residual of eq. feat_gicp adds its own cost, and b stays half its gradient.
+  source.feature_gradient.resize(source.size() * 3 * 3);
+  std::normal_distribution<float> n01(0.0f, 1.0f);
+  for (float& g : source.feature_gradient) g = 5.0f * n01(rng);
+  source.feature_spread.assign(source.size(), 0.05f);
+  config.feature_residual_weight = 0.7;
+  const LinearSystem with = run_linearize(GetParam(), source, target, T, config);
+  Vector6d numeric_with;
+  for (int k = 0; k < 6; ++k) {
+    Vector6d xi = Vector6d::Zero();
+    xi[k] = h;
+    const LinearSystem plus = run_linearize(GetParam(), source, target, se3_exp(xi) * T, config);
+    const LinearSystem minus = run_linearize(GetParam(), source, target, se3_exp(-xi) * T, config);
+    numeric_with[k] = (plus.cost - minus.cost) / (2.0 * h);
+  }
+  EXPECT_GT((with.b - system.b).norm(), 1e-3 * system.b.norm()) << "the residual term did nothing";
+  EXPECT_LT((2.0 * with.b - numeric_with).norm(), 1e-5 * std::max(1.0, numeric_with.norm()))
+      << "analytic " << (2.0 * with.b).transpose() << "\nnumeric  " << numeric_with.transpose();
+  EXPECT_LT((with.H - with.H.transpose()).norm(), 1e-9 * with.H.norm());
+}
+
+// The feature residual of eq. feat_gicp constrains what geometry cannot: a frame of a flat wall
+// and floor slid 2 cm along both (x) has no geometric restoring force along x, but the wall's
+// texture, a latent ramp of 10 units per metre along x, brings it back.
+TEST_P(GicpBackend, FeatureResidualRecoversASlideAlongAFlatSurface) {
+  const PinholeCamera camera{100.0, 100.0, 39.5, 29.5, 80, 60};
+  const double slide = 0.02;  // metres along x: the source camera sits here in the target's frame
+  // World: wall z = 2 for y < 0.3, floor y = 0.3 in front of it; a point at pixel (u, v) of a
+  // camera at x = cx_world.
+  auto surface_point = [&](int u, int v) -> Eigen::Vector3d {
+    const Eigen::Vector3d ray((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0);
+    const double t_wall = 2.0;
+    const double t_floor = ray.y() > 1e-9 ? 0.3 / ray.y() : 1e9;
+    return ray * std::min(t_wall, t_floor);
+  };
+  auto texture = [](const Eigen::Vector3d& world) { return static_cast<float>(10.0 * world.x()); };
+  auto build = [&](double camera_x, bool with_latent, PlanarImage* latent) {
+    GaussianPoints points;
+    if (with_latent) *latent = PlanarImage(camera.width, camera.height, 1);
+    for (int v = 0; v < camera.height; ++v)
+      for (int u = 0; u < camera.width; ++u) {
+        const Eigen::Vector3d p = surface_point(u, v);
+        if (with_latent) latent->at(0, v, u) = texture(p + Eigen::Vector3d(camera_x, 0.0, 0.0));
+        if (u % 2 == 0 && v % 2 == 0) points.means.push_back(p.cast<float>());
+      }
+    estimate_covariances_knn(test_covariance_config(), &points);
+    return points;
+  };
+  PlanarImage latent;
+  GaussianPoints source = build(slide, true, &latent);
+  sample_point_features(latent, camera, &source, /*gradient=*/true);
+  ASSERT_TRUE(source.has_feature_gradient());
+  GaussianPoints target_points = build(0.0, false, nullptr);
+  target_points.feature_dim = 1;
+  for (const Eigen::Vector3f& p : target_points.means) target_points.features.push_back(texture(p.cast<double>()));
+  const KdTreeTarget target = make_target(target_points);
+
+  GicpConfig config = scene_config();
+  config.max_correspondence_distance = 0.08f;
+  const Eigen::Isometry3d truth(Eigen::Translation3d(slide, 0.0, 0.0));
+  const Eigen::Isometry3d T_init = Eigen::Isometry3d::Identity();
+  const GicpResult geometric = run_align(GetParam(), source, target, T_init, config);
+  config.feature_residual_weight = 1.0;
+  const GicpResult with = run_align(GetParam(), source, target, T_init, config);
+  EXPECT_GT(std::abs(geometric.T_target_source.translation().x() - slide), 0.015)
+      << "the scene constrains x without the feature residual";
+  EXPECT_LT(pose_error(with.T_target_source, truth).metres, 1e-3);
+  EXPECT_LT(pose_error(with.T_target_source, truth).degrees, 0.05);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -675,6 +745,8 @@ TEST(GicpConfigValidation, ExplainsEachBadField) {
       {[](GicpConfig* c) { c->lm_lambda = -1e-3; }, "lm_lambda"},
       {[](GicpConfig* c) { c->feature_gamma = INFINITY; }, "feature_gamma"},
       {[](GicpConfig* c) { c->feature_noise = 0.0; }, "feature_noise"},
+      {[](GicpConfig* c) { c->feature_residual_weight = -1.0; }, "feature_residual_weight"},
+      {[](GicpConfig* c) { c->feature_residual_weight = NAN; }, "feature_residual_weight"},
   };
   for (const Case& c : cases) {
     GicpConfig config;

@@ -49,6 +49,33 @@ TEST(PointFeatures, PointsTakeTheLatentWhereTheyProject) {
   EXPECT_EQ(points.feature_spread[3], 0.0f);
 }
 
+// The gradient d f / d X: on the ramp one cell (10 px) moves channel c by 1 along x and 10 along y;
+// the point at (24.5, 14.5) and z = 2 is at X = Y = -0.2 m, where du/dx = dv/dy = fx / z = 25 px/m,
+// so d f / d X = (0.1 * 25, 1 * 25, -(0.1 * 50 * -0.2 + 1 * 50 * -0.2) / 4) = (2.5, 25, 2.75),
+// and moving the point along its ray leaves the feature unchanged (G X = 0).
+TEST(PointFeatures, GradientFollowsTheLatentThroughTheProjection) {
+  const PlanarImage latent = ramp_latent();
+  const PinholeCamera camera = ramp_camera();
+  GaussianPoints points;
+  points.means = {Eigen::Vector3f(-0.2f, -0.2f, 2.0f)};
+  points.covariances.assign(1, Eigen::Matrix3f::Identity());
+  sample_point_features(latent, camera, &points);
+  EXPECT_FALSE(points.has_feature_gradient()) << "only on request";
+  sample_point_features(latent, camera, &points, /*gradient=*/true);
+  ASSERT_TRUE(points.has_feature_gradient());
+  ASSERT_EQ(points.feature_gradient.size(), 2u * 3u);
+  for (int c = 0; c < 2; ++c) {
+    const Eigen::Vector3f G(&points.feature_gradient[3 * c]);
+    EXPECT_NEAR(G.x(), 2.5f, 1e-4f) << "channel " << c;
+    EXPECT_NEAR(G.y(), 25.0f, 1e-3f) << "channel " << c;
+    EXPECT_NEAR(G.z(), 2.75f, 1e-3f) << "channel " << c;
+    EXPECT_NEAR(G.dot(points.means[0]), 0.0f, 1e-4f) << "channel " << c;
+  }
+  EXPECT_TRUE(points.is_consistent());
+  // A transformed copy is in another frame: the camera-frame gradient does not travel with it.
+  EXPECT_FALSE(transformed(points, Eigen::Isometry3d::Identity()).has_feature_gradient());
+}
+
 TEST(PointFeatures, AUniformLatentHasNoSpread) {
   const PlanarImage latent(8, 6, 3, 0.7f);
   const PinholeCamera camera{60.0, 60.0, 31.5, 23.5, 64, 48};

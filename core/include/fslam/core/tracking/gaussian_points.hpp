@@ -22,12 +22,18 @@ struct GaussianPoints {
   // from the point (sample_point_features), the feature distance that a correspondence off by
   // about one lattice cell costs. Eq. feat_dist measures the distance in units of it.
   std::vector<float> feature_spread;
+  // [N * feature_dim * 3] feature units per metre, optional (empty = none), camera frame only
+  // (transformed() drops it): d f / d X of the frame's latent at the point, row-major D x 3, for
+  // a point X moving in front of the camera (the image gradient through the projection's
+  // Jacobian, so zero along the ray). The feature residual of eq. feat_gicp linearises with it.
+  std::vector<float> feature_gradient;
 
   std::size_t size() const { return means.size(); }
   bool empty() const { return means.empty(); }
   bool has_opacities() const { return !opacities.empty(); }
   bool has_features() const { return feature_dim > 0 && !features.empty(); }
   bool has_feature_spread() const { return !feature_spread.empty(); }
+  bool has_feature_gradient() const { return !feature_gradient.empty(); }
   const float* feature(std::size_t i) const { return features.data() + i * feature_dim; }
   void clear();
   void reserve(std::size_t n);

@@ -42,6 +42,12 @@ struct GicpConfig {
   // where the latent does not vary around it (redkitchen: 0.03 with the camera at rest, 0.2 as
   // the median over successive frames, which includes some motion).
   double feature_noise = 0.1;
+  // lambda_f of the feature residual, eq. feat_gicp's d_f read as an added term that depends on
+  // T: alpha lambda_f (1 - d_f) / gamma per correspondence, d_f = exp(-gamma ||f_s(T^-1 mu_t) -
+  // f_t||^2 / s), the frame's latent read where the target lands in the frame (linearised by
+  // GaussianPoints::feature_gradient). Unitless; 0 = off (the default: with the builtin encoder
+  // every weight tried made tracking worse, docs/tracking.md "A feature residual").
+  double feature_residual_weight = 0.0;
   bool is_valid(std::string* why = nullptr) const;
 };
 

@@ -73,6 +73,7 @@ struct GicpFactorContext {
   double feature_gamma = 0.0;
   double feature_noise = 1.0;
   int feature_dim = 0;
+  double feature_residual_weight = 0.0;  // > 0 only with features and the source's gradients
 };
 
 // The context for linearising `source` against `target` at T_target_source.
@@ -94,6 +95,8 @@ GicpFactorContext make_gicp_factor_context(const GaussianPoints& source, const T
   ctx.feature_gamma = config.feature_gamma;
   ctx.feature_noise = config.feature_noise;
   ctx.feature_dim = ctx.use_features ? source.feature_dim : 0;
+  ctx.feature_residual_weight =
+      ctx.use_features && source.has_feature_gradient() ? config.feature_residual_weight : 0.0;
   return ctx;
 }
 
@@ -138,7 +141,11 @@ inline void accumulate_gicp_factor(const GaussianPoints& source, std::size_t i,
   const RobustValue robust = robust_kernel(ctx.kernel, ctx.kernel_scale, m);
 
   double weight = 1.0;  // eq. feat_gicp (multiplicative reading, see above)
-  if (ctx.use_opacity) weight *= static_cast<double>(match->opacity);
+  double alpha = 1.0;
+  if (ctx.use_opacity) {
+    alpha = static_cast<double>(match->opacity);
+    weight *= alpha;
+  }
   if (ctx.use_features) {
     const float* fs = source.feature(i);
     const float* ft = target.feature(*match);
@@ -155,6 +162,33 @@ inline void accumulate_gicp_factor(const GaussianPoints& source, std::size_t i,
     const double similarity = std::exp(-ctx.feature_gamma * static_cast<double>(feature_distance) / scale);
     weight *= similarity;
     system->feature_weight_sum += similarity;
+    if (ctx.feature_residual_weight > 0.0) {
+      // The frame's latent where the target mean lands, to first order about the source point:
+      // r = f_s + G (T^-1 mu_t - mu_s) - f_t; d r / d xi = G R^T [-I, hat(mu_t)].
+      const Eigen::Vector3d mu_t = match->mean.cast<double>();
+      const Eigen::Vector3d offset = ctx.R.transpose() * (mu_t - ctx.t) - source.means[i].cast<double>();
+      const float* G = source.feature_gradient.data() + i * static_cast<std::size_t>(ctx.feature_dim) * 3;
+      Matrix36d dY;
+      dY.leftCols<3>() = -ctx.R.transpose();
+      dY.rightCols<3>() = ctx.R.transpose() * hat(mu_t);
+      Eigen::Matrix3d A = Eigen::Matrix3d::Zero();  // sum_k G_k G_k^T
+      Eigen::Vector3d v = Eigen::Vector3d::Zero();  // sum_k G_k r_k
+      double r2 = 0.0;
+      for (int k = 0; k < ctx.feature_dim; ++k) {
+        const Eigen::Vector3d Gk(G[3 * k], G[3 * k + 1], G[3 * k + 2]);
+        const double r = fs[k] - ft[k] + Gk.dot(offset);
+        A.noalias() += Gk * Gk.transpose();
+        v += r * Gk;
+        r2 += r * r;
+      }
+      // Welsch on the scaled distance: cost lambda_f (1 - d_f) / gamma, IRLS weight lambda_f d_f / s.
+      const double e = r2 / scale;
+      const double df = std::exp(-ctx.feature_gamma * e);
+      const double wf = alpha * ctx.feature_residual_weight * df / scale;
+      system->H.noalias() += (wf * dY.transpose()) * A * dY;
+      system->b.noalias() += (wf * dY.transpose()) * v;
+      system->cost += alpha * ctx.feature_residual_weight * (ctx.feature_gamma > 0.0 ? (1.0 - df) / ctx.feature_gamma : e);
+    }
   }
 
   const Eigen::Matrix<double, 6, 3> JtM = J.transpose() * M;

@@ -18,9 +18,11 @@ namespace fslam::core {
 // latent: [D, h, w] over the whole frame of `camera` (any resolution; pixel centres map as
 // PinholeCamera::scaled does). Bilinear, clamped at the borders; points behind the camera get
 // zeros. Sets points->feature_dim = D and fills points->features, and points->feature_spread
-// with the mean of ||f(x + s) - f(x)||^2 over the four steps s of one latent cell.
+// with the mean of ||f(x + s) - f(x)||^2 over the four steps s of one latent cell. With
+// `gradient`, also points->feature_gradient (central differences over one cell each way, through
+// the projection's Jacobian), which only the feature residual (gicp.feature_residual_weight) reads.
 void sample_point_features(const PlanarImage& latent, const PinholeCamera& camera,
-                           GaussianPoints* points_camera);
+                           GaussianPoints* points_camera, bool gradient = false);
 
 // Whether a depth image sees a world point: in front of the camera, inside the image, and
 // within max_depth_difference (metres) of the depth at the pixel holding its projection (an
