@@ -244,17 +244,22 @@ TEST_P(GicpBackend, SystemGradientMatchesCentralDifferencesOfCost) {
   const LinearSystem system = run_linearize(GetParam(), source, target, T, config);
   ASSERT_GT(system.inliers, source.size() / 2);
 
-  const double h = 1e-7;
-  Vector6d numeric;
-  for (int k = 0; k < 6; ++k) {
-    Vector6d xi = Vector6d::Zero();
-    xi[k] = h;
-    const LinearSystem plus = run_linearize(GetParam(), source, target, se3_exp(xi) * T, config);
-    const LinearSystem minus = run_linearize(GetParam(), source, target, se3_exp(-xi) * T, config);
-    ASSERT_EQ(plus.inliers, system.inliers);
-    ASSERT_EQ(minus.inliers, system.inliers);
-    numeric[k] = (plus.cost - minus.cost) / (2.0 * h);
-  }
+  // Central differences of the cost over the six perturbations (correspondences do not change).
+  const auto numeric_gradient = [&](const GicpConfig& c) {
+    const double h = 1e-7;
+    Vector6d numeric;
+    for (int k = 0; k < 6; ++k) {
+      Vector6d xi = Vector6d::Zero();
+      xi[k] = h;
+      const LinearSystem plus = run_linearize(GetParam(), source, target, se3_exp(xi) * T, c);
+      const LinearSystem minus = run_linearize(GetParam(), source, target, se3_exp(-xi) * T, c);
+      EXPECT_EQ(plus.inliers, system.inliers);
+      EXPECT_EQ(minus.inliers, system.inliers);
+      numeric[k] = (plus.cost - minus.cost) / (2.0 * h);
+    }
+    return numeric;
+  };
+  const Vector6d numeric = numeric_gradient(config);
   EXPECT_LT((2.0 * system.b - numeric).norm(), 1e-5 * std::max(1.0, numeric.norm()))
       << "analytic " << (2.0 * system.b).transpose() << "\nnumeric  " << numeric.transpose();
   EXPECT_LT((system.H - system.H.transpose()).norm(), 1e-9 * system.H.norm());
@@ -266,14 +271,7 @@ TEST_P(GicpBackend, SystemGradientMatchesCentralDifferencesOfCost) {
   source.feature_spread.assign(source.size(), 0.05f);
   config.feature_residual_weight = 0.7;
   const LinearSystem with = run_linearize(GetParam(), source, target, T, config);
-  Vector6d numeric_with;
-  for (int k = 0; k < 6; ++k) {
-    Vector6d xi = Vector6d::Zero();
-    xi[k] = h;
-    const LinearSystem plus = run_linearize(GetParam(), source, target, se3_exp(xi) * T, config);
-    const LinearSystem minus = run_linearize(GetParam(), source, target, se3_exp(-xi) * T, config);
-    numeric_with[k] = (plus.cost - minus.cost) / (2.0 * h);
-  }
+  const Vector6d numeric_with = numeric_gradient(config);
   EXPECT_GT((with.b - system.b).norm(), 1e-3 * system.b.norm()) << "the residual term did nothing";
   EXPECT_LT((2.0 * with.b - numeric_with).norm(), 1e-5 * std::max(1.0, numeric_with.norm()))
       << "analytic " << (2.0 * with.b).transpose() << "\nnumeric  " << numeric_with.transpose();
@@ -286,8 +284,8 @@ TEST_P(GicpBackend, SystemGradientMatchesCentralDifferencesOfCost) {
 TEST_P(GicpBackend, FeatureResidualRecoversASlideAlongAFlatSurface) {
   const PinholeCamera camera{100.0, 100.0, 39.5, 29.5, 80, 60};
   const double slide = 0.02;  // metres along x: the source camera sits here in the target's frame
-  // World: wall z = 2 for y < 0.3, floor y = 0.3 in front of it; a point at pixel (u, v) of a
-  // camera at x = cx_world.
+  // A wall at z = 2 m and a floor at y = 0.3 m in front of it, both unbounded along x: any camera
+  // on the x axis sees the same geometry, this point at pixel (u, v).
   auto surface_point = [&](int u, int v) -> Eigen::Vector3d {
     const Eigen::Vector3d ray((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0);
     const double t_wall = 2.0;
