@@ -41,7 +41,7 @@ command -v clang++ >/dev/null || { echo "run_fuzz.sh: clang++ not found (deploy/
 if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
   echo "== configure $BUILD_DIR (clang, FSLAM_FUZZ=ON, no CUDA, no tests)"
   # -O1 with line tables only (libFuzzer's usual flags): stack traces keep file:line, and the
-  # build takes 324 instead of 443 s on dev-2c-intel (RelWithDebInfo's -O2 -g).
+  # build takes 324-342 instead of 443 s on dev-2c-intel (RelWithDebInfo's -O2 -g).
   CC=clang CXX=clang++ cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
