@@ -13,7 +13,8 @@
 #          --k8s-check (also: node + npm ci in deploy/k8s/validate, for the Kubernetes manifest
 #          test; containers are deploy/test_containers.sh, opt-in and separate)
 #          --fuzz-seconds N (--test: after ctest, every libFuzzer target runs N s over its seed
-#          corpus, tests/fuzz/run_fuzz.sh; default 10, 0 = skip)
+#          corpus, tests/fuzz/run_fuzz.sh --opt 0 (an -O0 build, the quicker to make); default
+#          10, 0 = skip)
 #          --sanitize address|thread (an instrumented build in build-asan / build-tsan; with
 #          --test: the whole suite under ASan + UBSan, or the threaded server tests under TSan;
 #          docs/reliability.md)
@@ -177,7 +178,7 @@ run_tests() {
   ctest --test-dir "$BUILD_DIR" --output-on-failure -j "$JOBS" --timeout 900
   if [[ "$FUZZ_SECONDS" -gt 0 ]]; then
     log "fuzz smoke: every libFuzzer target for $FUZZ_SECONDS s (tests/fuzz/run_fuzz.sh)"
-    bash "$ROOT/tests/fuzz/run_fuzz.sh" --seconds "$FUZZ_SECONDS" --jobs "$JOBS"
+    bash "$ROOT/tests/fuzz/run_fuzz.sh" --opt 0 --seconds "$FUZZ_SECONDS" --jobs "$JOBS"
   fi
 }
 

@@ -8,13 +8,17 @@
 #   bash tests/fuzz/run_fuzz.sh --only frame,ply --seconds 60
 #   bash tests/fuzz/run_fuzz.sh --seeds          # regenerate tests/fuzz/corpus from make_seeds
 #                                                (inputs that crashed, regression-*, are kept)
+#   bash tests/fuzz/run_fuzz.sh --opt 0          # the smoke deploy/setup.sh --test runs: an -O0
+#                                                build, quicker to make, 2-5x fewer execs per second
 #
-# Options: --build-dir DIR (default build-fuzz)  --jobs N  --out DIR (default out/fuzz: the
-# corpus grown by the run, crash files and logs; the committed seed corpus is never modified)
+# Options: --opt 0|1 (default 1)  --build-dir DIR (default build-fuzz, build-fuzz-O0 with --opt 0)
+# --jobs N  --out DIR (default out/fuzz: the corpus grown by the run, crash files and logs; the
+# committed seed corpus is never modified)
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
-BUILD_DIR="$ROOT/build-fuzz"
+BUILD_DIR=""
+OPT=1
 OUT="$ROOT/out/fuzz"
 SECONDS_EACH=10
 JOBS="$(nproc)"
@@ -25,6 +29,7 @@ TARGETS=(frame request ply trajectory keyframes keyframe_images dataset autoenco
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --build-dir) BUILD_DIR="$(realpath -m "$2")"; shift ;;
+    --opt) OPT="$2"; shift ;;
     --out) OUT="$(realpath -m "$2")"; shift ;;
     --seconds) SECONDS_EACH="$2"; shift ;;
     --jobs) JOBS="$2"; shift ;;
@@ -36,15 +41,21 @@ while [[ $# -gt 0 ]]; do
   shift
 done
 [[ -n "$ONLY" ]] && IFS=, read -r -a TARGETS <<<"$ONLY"
+case "$OPT" in
+  1) [[ -n "$BUILD_DIR" ]] || BUILD_DIR="$ROOT/build-fuzz" ;;
+  0) [[ -n "$BUILD_DIR" ]] || BUILD_DIR="$ROOT/build-fuzz-O0" ;;
+  *) echo "run_fuzz.sh: --opt takes 0 or 1, not '$OPT'" >&2; exit 2 ;;
+esac
 
 command -v clang++ >/dev/null || { echo "run_fuzz.sh: clang++ not found (deploy/setup.sh --fuzz installs clang)" >&2; exit 1; }
 if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
-  echo "== configure $BUILD_DIR (clang, FSLAM_FUZZ=ON, no CUDA, no tests)"
-  # -O1 with line tables only (libFuzzer's usual flags): stack traces keep file:line, and the
-  # build takes 324-342 instead of 443 s on dev-2c-intel (RelWithDebInfo's -O2 -g).
+  echo "== configure $BUILD_DIR (clang -O$OPT, FSLAM_FUZZ=ON, no CUDA, no tests)"
+  # Line tables only: stack traces keep file:line. -O1 (libFuzzer's usual flags) builds in
+  # 324-342 s on dev-2c-intel (RelWithDebInfo's -O2 -g: 443 s); -O0 in 246 s, for a smoke whose
+  # 10 s per target replay the seeds and mutate a while at 2-5x fewer execs per second.
   CC=clang CXX=clang++ cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
-    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
+    -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O$OPT -gline-tables-only -DNDEBUG" \
+    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O$OPT -gline-tables-only -DNDEBUG" \
     -DFSLAM_FUZZ=ON -DFSLAM_WITH_CUDA=OFF -DFSLAM_BUILD_TESTS=OFF >/dev/null
 fi
 t0=$SECONDS
