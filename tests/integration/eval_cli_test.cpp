@@ -133,7 +133,9 @@ TEST(EvalCli, ResidualGridOfAnUnbiasedSensorIsFlat) {
           if (cell.is_null()) continue;
           ++cells;
           abs_sum += std::abs(cell.get<double>());
-          if (near) EXPECT_LT(std::abs(cell.get<double>()), 0.002) << side;  // metres
+          if (near) {
+            EXPECT_LT(std::abs(cell.get<double>()), 0.002) << side;  // metres
+          }
         }
   }
   ASSERT_GT(cells, 20u);
