@@ -52,14 +52,21 @@ TEST(EvalCli, ErrorsGoToStderrWithNonZeroExit) {
   EXPECT_NE(out.find("--rpe-unit"), std::string::npos) << out;
 }
 
+// A synthetic room of 12 frames (seed 3) in dir/room; its path.
+std::string synth_room(const std::filesystem::path& dir) {
+  const std::string room = (dir / "room").string();
+  std::string out, err;
+  EXPECT_EQ(run_command(fslam_bin() + " synth --out " + room + " --frames 12 --seed 3", &out, &err), 0) << err;
+  return room;
+}
+
 // --dataset scores each step's depth agreement: an estimate that jumps 4 cm along world z at one
 // frame of a synthetic room disagrees with the depth at that step and only there.
 TEST(EvalCli, DepthAgreementFindsTheStepWhereAnEstimateJumps) {
   const auto dir = test::fresh_temp_dir("eval_depth");
-  const std::string room = (dir / "room").string();
+  const std::string room = synth_room(dir);
+  ASSERT_FALSE(HasFailure());
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + room + " --frames 12 --seed 3", &out, &err), 0)
-      << err;
   std::ifstream gt_file(room + "/groundtruth.txt");
   std::ofstream est_file(dir / "est.txt");
   std::string line;
@@ -109,10 +116,9 @@ TEST(EvalCli, DepthAgreementFindsTheStepWhereAnEstimateJumps) {
 // medians (redkitchen's Kinect shows +-10 mm there, docs/tracking.md).
 TEST(EvalCli, ResidualGridOfAnUnbiasedSensorIsFlat) {
   const auto dir = test::fresh_temp_dir("eval_grid");
-  const std::string room = (dir / "room").string();
+  const std::string room = synth_room(dir);
+  ASSERT_FALSE(HasFailure());
   std::string out, err;
-  ASSERT_EQ(run_command(fslam_bin() + " synth --out " + room + " --frames 12 --seed 3", &out, &err), 0)
-      << err;
   ASSERT_EQ(run_command(fslam_bin() + " eval --est " + room + "/groundtruth.txt --dataset " + room +
                             " --depth-delta 3 --residual-grid --json " + (dir / "g.json").string(),
                         &out, &err),
