@@ -47,7 +47,7 @@ case "$OPT" in
   *) echo "run_fuzz.sh: --opt takes 0 or 1, not '$OPT'" >&2; exit 2 ;;
 esac
 
-command -v clang++ >/dev/null || { echo "run_fuzz.sh: clang++ not found (deploy/setup.sh --fuzz installs clang)" >&2; exit 1; }
+command -v clang++ >/dev/null || { echo "run_fuzz.sh: clang++ not found (deploy/setup.sh --test installs clang)" >&2; exit 1; }
 if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
   echo "== configure $BUILD_DIR (clang -O$OPT, FSLAM_FUZZ=ON, no CUDA, no tests)"
   # Line tables only: stack traces keep file:line. -O1 (libFuzzer's usual flags) builds in
