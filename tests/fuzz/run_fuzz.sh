@@ -50,9 +50,10 @@ esac
 command -v clang++ >/dev/null || { echo "run_fuzz.sh: clang++ not found (deploy/setup.sh --test installs clang)" >&2; exit 1; }
 if [[ ! -f "$BUILD_DIR/CMakeCache.txt" ]]; then
   echo "== configure $BUILD_DIR (clang -O$OPT, FSLAM_FUZZ=ON, no CUDA, no tests)"
-  # Line tables only: stack traces keep file:line. -O1 (libFuzzer's usual flags) builds in
-  # 324-342 s on dev-2c-intel (RelWithDebInfo's -O2 -g: 443 s); -O0 in 246 s, for a smoke whose
-  # 10 s per target replay the seeds and mutate a while at 2-5x fewer execs per second.
+  # Line tables only: stack traces keep file:line. -O1 is libFuzzer's usual level
+  # (RelWithDebInfo's -O2 -g took 443 s against 324 s); -O0 builds in 222-228 s against -O1's
+  # 370-371 s (dev-2c-intel, alternating, docs/benchmarks.md), for a smoke whose 10 s per target
+  # replay the seeds and mutate a while at 2-5x fewer execs per second.
   CC=clang CXX=clang++ cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O$OPT -gline-tables-only -DNDEBUG" \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O$OPT -gline-tables-only -DNDEBUG" \
