@@ -232,9 +232,9 @@ run_demo() {
   fi
   log "viewer: $viewer_url (open it in a browser while the demo runs: the map grows live)"
 
-  log "stream the sequence live at 30 Hz (JPEG colour, PNG depth; the server skips to the newest frame when behind)"
+  log "stream the sequence live at 30 Hz (JPEG colour, PNG depth, encoded before the clock starts as a camera's; the server skips to the newest frame when behind)"
   "$fslam" stream --dataset "$OUT/sequence" --prefix "$prefix" --session demo --map room \
-    --rate 30 --policy live --out "$OUT/trajectory.txt" --report "$OUT/stream.json" | tee "$OUT/stream.txt"
+    --rate 30 --policy live --preload --out "$OUT/trajectory.txt" --report "$OUT/stream.json" | tee "$OUT/stream.txt"
 
   log "renders from the server, at tracked poses of the trajectory"
   local frame

@@ -50,6 +50,7 @@ struct StreamArgs {
   DiscoveryArgs discovery;
   int timeout_s = 60;        // for the last poses after the last frame
   int window = 32;           // queue policy: frames sent and not answered yet, at most
+  bool preload = false;      // read and encode every frame before the clock starts
   std::string rosbag2, rosbag2_topics;  // a rosbag2 recording instead of --dataset (stream_rosbag2.hpp)
   double rosbag2_tolerance_ms = 20.0;
 };
@@ -58,7 +59,8 @@ struct StreamArgs {
 // and where the server says its share went; the rest is encoding, transport and publishing.
 using TimePoint = std::chrono::steady_clock::time_point;
 struct SendTimes {
-  TimePoint encode_start, written;  // push_frame called, push_frame returned (encoded and written)
+  TimePoint encode_start, written;  // encoding began (or, preloaded, the write), the write returned
+  double encoded_ahead_ms = 0.0;    // --preload: the frame's encoding, done before the clock started
 };
 
 // Per tracked frame, milliseconds: each stage's samples.
@@ -75,8 +77,9 @@ Latency latency_of(const std::map<std::uint64_t, SendTimes>& sent,
     const auto s = sent.find(id);
     if (s == sent.end()) continue;
     const client::PoseUpdate& p = poses.at(id);
-    l.total.push_back(ms(s->second.encode_start, t));
-    l.encode.push_back(ms(s->second.encode_start, s->second.written));
+    // A preloaded frame's encoding counts as if done in its slot, as a camera's client would.
+    l.total.push_back(s->second.encoded_ahead_ms + ms(s->second.encode_start, t));
+    l.encode.push_back(s->second.encoded_ahead_ms + ms(s->second.encode_start, s->second.written));
     l.decode.push_back(p.decode_ms);
     l.queue.push_back(p.queue_ms);
     l.track.push_back(p.track_ms);
@@ -170,6 +173,7 @@ int report_stream(const StreamArgs& args, const core::Dataset& dataset, const St
                            {"no_answer", o.missing},    {"seconds_to_last_pose", o.elapsed},
                            {"policy", args.policy},     {"rate", args.rate},
                            {"mode", args.mode},         {"closed", o.close_error.empty()},
+                           {"preloaded", args.preload},
                            {"close_s", o.close_s},      {"latency", latency_json(latency)}};
   report["tracked_frame_ids"] = tracked_ids;
   if (dataset.has_ground_truth() && !o.trajectory.empty()) {
@@ -332,10 +336,48 @@ int run_stream(const StreamArgs& args) {
   client.on_result([&](const client::ResultUpdate& r) {
     if (!r.ok) ++errors, std::fprintf(stderr, "\nserver: %s\n", r.error.c_str());
   });
+  const std::size_t n = dataset->size();
+  // Frame i read from the dataset and encoded for the wire; `started`: when its encoding began
+  // (the reading before it is the replay's, not a camera client's).
+  auto encode_frame = [&](std::size_t i, client::EncodedFrame* out, TimePoint* started, std::string* err) {
+    core::RgbdFrame frame;
+    if (!dataset->load(i, &frame, err)) return false;
+    cv::Mat depth_raw;
+    frame.depth.convertTo(depth_raw, CV_16UC1, dataset->depth_scale());
+    const client::FrameInput input = frame_input(frame, dataset->depth_scale(), depth_raw);
+    *started = std::chrono::steady_clock::now();
+    return client::Client::encode_frame(input, out, err);
+  };
+  auto ms_since = [](TimePoint t) {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+  };
+  // --preload: the whole sequence read and encoded before the session opens, so that playing it
+  // takes no CPU from a server on the same machine (a camera hands its frames over; the reading
+  // and decoding of a recorded dataset is the replay's cost, not the client's).
+  std::vector<client::EncodedFrame> preloaded;
+  std::vector<double> preload_ms;
+  if (args.preload) {
+    const auto t0 = std::chrono::steady_clock::now();
+    Progress progress("preload", n);
+    preloaded.resize(n);
+    preload_ms.resize(n);
+    std::size_t bytes = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      TimePoint started;
+      if (!encode_frame(i, &preloaded[i], &started, &why)) return fail(why);
+      preload_ms[i] = ms_since(started);
+      bytes += preloaded[i].colour.size() + preloaded[i].depth.size();
+      progress.update(i + 1);
+    }
+    progress.finish();
+    std::fprintf(stderr, "preloaded %zu frames: %.1f MB encoded in %.1f s; encoding %.1f ms per frame "
+                 "(median), counted in the latency below\n", n, static_cast<double>(bytes) / 1e6,
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                 percentile(preload_ms, 0.5));
+  }
   if (!client.open_session(args.session, map, 10000, &why, session_options)) {
     return fail(why);
   }
-  const std::size_t n = dataset->size();
   std::fprintf(stderr, "streaming %zu frames of %s to session '%s' at %s\n", n,
                dataset->root().c_str(), args.session.c_str(),
                rate > 0 ? (args.rate + " fps").c_str() : "full speed");
@@ -374,21 +416,19 @@ int run_stream(const StreamArgs& args) {
                                     std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                         std::chrono::duration<double>(static_cast<double>(i) / rate)));
     }
-    core::RgbdFrame frame;
-    if (!dataset->load(i, &frame, &why)) return fail(why);
-    cv::Mat depth_raw;
-    frame.depth.convertTo(depth_raw, CV_16UC1, dataset->depth_scale());
-    const client::FrameInput input = frame_input(frame, dataset->depth_scale(), depth_raw);
-    const TimePoint encode_start = std::chrono::steady_clock::now();
+    client::EncodedFrame encoded_now;
+    TimePoint encode_start = std::chrono::steady_clock::now();  // preloaded: the write's start
+    if (!args.preload && !encode_frame(i, &encoded_now, &encode_start, &why)) return fail(why);
+    const client::EncodedFrame& encoded = args.preload ? preloaded[i] : encoded_now;
     {
-      std::lock_guard<std::mutex> lock(mutex);
-      sent[input.frame_id].encode_start = encode_start;  // a pose may arrive before push returns
+      std::lock_guard<std::mutex> lock(mutex);  // a pose may arrive before push returns
+      sent[encoded.frame_id] = {encode_start, {}, args.preload ? preload_ms[i] : 0.0};
     }
     // Flow control: a server slow for a while slows the playback (up to --timeout), no more.
-    if (!client.push_frame(args.session, input, &why, args.timeout_s * 1000)) return fail(why);
+    if (!client.push_encoded(args.session, encoded, &why, args.timeout_s * 1000)) return fail(why);
     {
       std::lock_guard<std::mutex> lock(mutex);
-      sent[input.frame_id].written = std::chrono::steady_clock::now();
+      sent[encoded.frame_id].written = std::chrono::steady_clock::now();
     }
     progress.update(i + 1);
   }
@@ -481,6 +521,10 @@ void add_stream_command(CLI::App& root, CommandList* commands) {
                   "Seconds to wait for the last poses, and for the server to take a frame (flow control); "
                   "the close waits at least 30 s (the server maps what is left first)")
       ->capture_default_str();
+  app->add_flag("--preload", args->preload,
+               "Read and encode every frame before the session opens (held in memory, encoded: "
+               "about 0.2-0.3 MB per 640x480 frame), so that playing at --rate takes no CPU from a "
+               "server on this machine; each frame's encoding time still counts in its latency");
   app->add_option("--window", args->window,
                   "With --policy queue: at most this many frames sent and not answered yet (the "
                   "client waits; keep it under the server's queue_capacity); 0: no limit")

@@ -8,7 +8,9 @@
 # frames per 30 sent, ATE over the tracked frames, and latency p50 / p99 split into client encode,
 # server decode, queue, track and the rest (DDS transport and publishing). The same frames are
 # then tracked in-process with `fslam track` (features as the server), so "what the service
-# costs" is read off one run. Server and client share this machine's cores.
+# costs" is read off one run. Server and client share this machine's cores; the client reads and
+# encodes the sequence before the session opens (`fslam stream --preload`), as a camera hands over
+# its frames, and each frame's encoding still counts in its latency (--no-preload: in its slot).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
@@ -20,9 +22,10 @@ FEATURES=auto
 OUT=/tmp/fslam_service_bench
 BIN="$ROOT/build/bin"
 EXTRA=()
+PRELOAD=(--preload)
 
 usage() {
-  sed -n '2,11p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
+  sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
   cat <<'USAGE'
 
 Options: --dataset DIR|synth (default ../shared/data/redkitchen; `synth`, or when absent: the
@@ -30,6 +33,7 @@ Options: --dataset DIR|synth (default ../shared/data/redkitchen; `synth`, or whe
          --frames A:B (default all)  --rate HZ|max (default 30)  --policy live|queue (default live)
          --features auto|off|FILE (auto: out/autoencoder/builtin.fae, made if missing)
          --out DIR  --bin DIR  --set key=value (passed to the server and to fslam track)
+         --no-preload (the client reads and encodes each frame in its slot, beside the server)
 USAGE
 }
 
@@ -43,6 +47,7 @@ while [[ $# -gt 0 ]]; do
     --out) OUT="$2"; shift ;;
     --bin) BIN="$2"; shift ;;
     --set) EXTRA+=(--set "$2"); shift ;;
+    --no-preload) PRELOAD=() ;;
     -h|--help) usage; exit 0 ;;
     *) echo "service_bench.sh: unknown option '$1'" >&2; usage >&2; exit 2 ;;
   esac
@@ -78,7 +83,7 @@ fi
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
 echo "commit:  $(git -C "$ROOT" rev-parse --short HEAD)$(git -C "$ROOT" diff --quiet || echo '+dirty')"
 echo "load before start: $(cut -d' ' -f1-3 /proc/loadavg)"
-echo "features: $FEATURES; policy: $POLICY; rate: $RATE"
+echo "features: $FEATURES; policy: $POLICY; rate: $RATE; client: ${PRELOAD[*]:-encodes in its slots (--no-preload)}"
 prefix="bench$$"
 "$BIN/fslam-server" --prefix "$prefix" "${SERVER_ARGS[@]}" >"$OUT/server.log" 2>&1 &
 server=$!
@@ -86,7 +91,7 @@ trap 'kill -TERM $server 2>/dev/null; wait $server 2>/dev/null' EXIT
 echo
 echo "== fslam stream --rate $RATE --policy $POLICY over loopback ($DATASET ${FRAMES:+frames $FRAMES})"
 "$BIN/fslam" stream --dataset "$DATASET" "${DATASET_ARGS[@]}" --rate "$RATE" --policy "$POLICY" \
-  --prefix "$prefix" --session bench --out "$OUT/streamed.txt" --report "$OUT/stream.json" \
+  --prefix "$prefix" --session bench --out "$OUT/streamed.txt" --report "$OUT/stream.json" "${PRELOAD[@]}" \
   2>"$OUT/stream.err" | tee "$OUT/stream.txt" || true
 grep -E "^server:" "$OUT/stream.err" | head -5 || true
 kill -TERM $server

@@ -87,7 +87,13 @@ TEST(Client, FramesReachAServerAndPosesComeBack) {
     TestFrame frame(static_cast<std::uint64_t>(f));
     frame.input.colour_encoding = f % 2 == 0 ? PayloadEncoding::jpeg : PayloadEncoding::raw;
     std::string why;
-    ASSERT_TRUE(client.push_frame("kitchen", frame.input, &why)) << why;
+    if (f % 3 == 0) {  // encoded ahead, then published: the same frame on the wire
+      EncodedFrame encoded;
+      ASSERT_TRUE(Client::encode_frame(frame.input, &encoded, &why)) << why;
+      ASSERT_TRUE(client.push_encoded("kitchen", encoded, &why)) << why;
+    } else {
+      ASSERT_TRUE(client.push_frame("kitchen", frame.input, &why)) << why;
+    }
   }
   int served = 0;
   for (int spin = 0; spin < 500 && served < kFrames; ++spin) {
@@ -155,6 +161,63 @@ TEST(Client, RefusesBadFramesWithAReason) {
   TestFrame missing(3);
   missing.input.depth = nullptr;
   EXPECT_FALSE(client.push_frame("s", missing.input, &why));
+  EncodedFrame unused;
+  EXPECT_FALSE(Client::encode_frame(missing.input, &unused, &why));
+  EXPECT_NE(why.find("required"), std::string::npos);
+
+  // Encoded frames: the same checks of the header, and both payloads present.
+  TestFrame good(4);
+  EncodedFrame encoded;
+  ASSERT_TRUE(Client::encode_frame(good.input, &encoded, &why)) << why;
+  EXPECT_FALSE(client.push_encoded("", encoded, &why));
+  EXPECT_NE(why.find("session"), std::string::npos);
+  EncodedFrame no_depth = encoded;
+  no_depth.depth.clear();
+  EXPECT_FALSE(client.push_encoded("s", no_depth, &why));
+  EXPECT_NE(why.find("required"), std::string::npos);
+  EncodedFrame zero_scale = encoded;
+  zero_scale.depth_scale = 0.0f;
+  EXPECT_FALSE(client.push_encoded("s", zero_scale, &why));
+  EXPECT_NE(why.find("scale"), std::string::npos);
+  EncodedFrame lossy_depth = encoded;
+  lossy_depth.depth_encoding = PayloadEncoding::jpeg;
+  EXPECT_FALSE(client.push_encoded("s", lossy_depth, &why));
+  EXPECT_NE(why.find("lossless"), std::string::npos);
+  EncodedFrame no_size = encoded;
+  no_size.intrinsics.width = 0;
+  EXPECT_FALSE(client.push_encoded("s", no_size, &why));
+  EXPECT_NE(why.find("intrinsics"), std::string::npos);
+}
+
+// encode_frame's payloads are ordinary files: the depth PNG decodes to the same 16-bit values,
+// the JPEG colour to within JPEG's error of the RGB rows (OpenCV decodes to BGR): a smooth
+// image, as JPEG's 4:2:0 chroma would blur TestFrame's sawtooth.
+TEST(Client, EncodedFramesDecodeToTheirImages) {
+  TestFrame frame(5);
+  for (int y = 0; y < kH; ++y) {
+    for (int x = 0; x < kW; ++x) {
+      std::uint8_t* p = frame.rgb.data() + 3 * (y * kW + x);
+      p[0] = static_cast<std::uint8_t>(3 * x);
+      p[1] = static_cast<std::uint8_t>(200 - 3 * y);
+      p[2] = 60;
+    }
+  }
+  EncodedFrame encoded;
+  std::string why;
+  ASSERT_TRUE(Client::encode_frame(frame.input, &encoded, &why)) << why;
+  EXPECT_EQ(encoded.frame_id, 5u);
+  EXPECT_DOUBLE_EQ(encoded.timestamp, 5.0 / 30.0);
+  EXPECT_EQ(encoded.intrinsics.width, static_cast<std::uint32_t>(kW));
+  const cv::Mat depth = cv::imdecode(encoded.depth, cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(depth.type(), CV_16UC1);
+  ASSERT_EQ(depth.size(), cv::Size(kW, kH));
+  EXPECT_TRUE(std::equal(frame.depth.begin(), frame.depth.end(), depth.ptr<std::uint16_t>()));
+  const cv::Mat bgr = cv::imdecode(encoded.colour, cv::IMREAD_COLOR);
+  ASSERT_EQ(bgr.size(), cv::Size(kW, kH));
+  double error = 0.0;  // mean absolute error, 8-bit levels
+  for (int i = 0; i < kW * kH; ++i)
+    for (int c = 0; c < 3; ++c) error += std::abs(bgr.data[3 * i + 2 - c] - frame.rgb[3 * i + c]);
+  EXPECT_LT(error / (kW * kH * 3), 3.0);
 }
 
 // A stand-in server that drops the first copy of every request, as a server whose result writer

@@ -44,6 +44,23 @@ struct FrameInput {
   double gt_rotation[4] = {0, 0, 0, 1}; // qx qy qz qw
 };
 
+// A frame encoded for the wire (Client::encode_frame), what Client::push_encoded publishes: for
+// a client that encodes ahead of sending (a replay that must not spend its sending slots on
+// encoding) or whose camera delivers compressed images. Colour: JPEG, PNG or raw RGB rows;
+// depth: PNG or raw 16-bit rows (lossless), in the encodings named.
+struct EncodedFrame {
+  std::uint64_t frame_id = 0;
+  double timestamp = 0.0;               // seconds
+  CameraIntrinsics intrinsics;
+  float depth_scale = 1000.0f;          // raw depth units per metre
+  PayloadEncoding colour_encoding = PayloadEncoding::jpeg;
+  PayloadEncoding depth_encoding = PayloadEncoding::png;
+  std::vector<std::uint8_t> colour, depth;  // the encoded images
+  bool has_gt_pose = false;             // evaluation only
+  double gt_translation[3] = {0, 0, 0}; // camera-to-world, metres
+  double gt_rotation[4] = {0, 0, 0, 1}; // qx qy qz qw
+};
+
 // A pose the server published for one frame.
 struct PoseUpdate {
   std::string session;
@@ -226,6 +243,10 @@ class Client {
   // when the server has not acknowledged the frames in flight (flow control, docs/protocol.md)
   // within `wait_ms`: the frame is then not sent.
   bool push_frame(const std::string& session, const FrameInput& frame, std::string* why, int wait_ms = 1000);
+  // push_frame in two steps: encode_frame checks and encodes the frame (no DDS involved, any
+  // thread), push_encoded publishes it (the same checks of the header and the flow control).
+  static bool encode_frame(const FrameInput& frame, EncodedFrame* out, std::string* why);
+  bool push_encoded(const std::string& session, const EncodedFrame& frame, std::string* why, int wait_ms = 1000);
   // Opens a streaming session on `map_name` (a new map, or options.mode localise or extend in a
   // served one) or closes it, and waits up to timeout_ms for the server's answer. False with `why` on
   // an error result or no answer.
