@@ -101,8 +101,6 @@ bool Client::encode_frame(const FrameInput& frame, EncodedFrame* out, std::strin
 }
 
 bool Client::push_frame(const std::string& session, const FrameInput& frame, std::string* why, int wait_ms) {
-  if (session.empty()) return fail(why, "push_frame: no session name");
-  if (!frame_writer_) return fail(why, "push_frame: " + frames_refused_);
   EncodedFrame encoded;
   return encode_frame(frame, &encoded, why) && push_encoded(session, encoded, why, wait_ms);
 }
