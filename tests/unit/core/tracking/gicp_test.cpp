@@ -483,6 +483,39 @@ TEST_P(GicpBackend, FeaturesResolveASpuriousSurface) {
   EXPECT_GT(e_without.metres, 1e-2) << "the scene is not ambiguous without features";
 }
 
+// align keeps each source point's feature similarity while its correspondence stays
+// (FeatureSimilarityMemo): the same bits as Gauss-Newton on linearize, which computes every
+// similarity afresh, in a scene whose floor correspondences move from the spurious copy to the
+// real floor over the iterations.
+TEST_P(GicpBackend, KeptFeatureSimilaritiesGiveTheSolutionOfFreshOnes) {
+  const AmbiguousFloorScene scene = ambiguous_floor_scene(1.0f, 1);
+  const KdTreeTarget target = make_target(scene.target_points);
+  GicpConfig config = scene_config();
+  config.max_correspondence_distance = 0.1f;
+  config.kernel = RobustKernel::huber;
+  config.use_features = true;
+  config.feature_gamma = 0.5;  // a soft weight: the spurious floor still pulls a little
+  const GicpResult kept = run_align(GetParam(), scene.source, target, scene.T_init, config);
+  ASSERT_TRUE(kept.features_used);
+
+  Eigen::Isometry3d T = scene.T_init;
+  int iterations = 0;
+  for (; iterations < config.max_iterations;) {
+    const LinearSystem system = run_linearize(GetParam(), scene.source, target, T, config);
+    Matrix6d H = system.H;
+    H.diagonal() *= 1.0 + config.lm_lambda;
+    const Vector6d delta = -Eigen::LDLT<Matrix6d>(H).solve(system.b);
+    T = se3_exp(delta) * T;
+    ++iterations;
+    if (delta.head<3>().norm() < config.translation_epsilon && delta.tail<3>().norm() < config.rotation_epsilon)
+      break;
+  }
+  EXPECT_GT(iterations, 3) << "correspondences had no iterations to change in";
+  EXPECT_EQ(kept.iterations, iterations);
+  EXPECT_EQ(kept.T_target_source.matrix(), T.matrix());
+  EXPECT_LT(pose_error(kept.T_target_source, scene.T_target_source).metres, 1e-3);
+}
+
 TEST_P(GicpBackend, IdenticalFeaturesLeaveTheSolutionUnchanged) {
   const AmbiguousFloorScene scene = ambiguous_floor_scene(1.0f, 0);  // spurious floor, same feature
   const KdTreeTarget target = make_target(scene.target_points);
