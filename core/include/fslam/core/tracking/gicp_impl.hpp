@@ -280,10 +280,6 @@ inline bool solve_step(const LinearSystem& system, double lm_lambda, Vector6d* d
   return delta->allFinite();
 }
 
-}  // namespace gicp_detail
-
-namespace gicp_detail {
-
 template <typename Target, typename Reduction>
 LinearSystem linearize(const GaussianPoints& source, const Target& target,
                        const Eigen::Isometry3d& T_target_source, const GicpConfig& config,
