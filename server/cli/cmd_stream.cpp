@@ -63,6 +63,8 @@ struct SendTimes {
   double encoded_ahead_ms = 0.0;    // --preload: the frame's encoding, done before the clock started
 };
 
+double ms_between(TimePoint a, TimePoint b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
 // Per tracked frame, milliseconds: each stage's samples.
 struct Latency {
   std::vector<double> total, encode, decode, queue, track, rest;
@@ -72,18 +74,17 @@ Latency latency_of(const std::map<std::uint64_t, SendTimes>& sent,
                    const std::map<std::uint64_t, TimePoint>& arrived,
                    const std::map<std::uint64_t, client::PoseUpdate>& poses) {
   Latency l;
-  auto ms = [](TimePoint a, TimePoint b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   for (const auto& [id, t] : arrived) {
     const auto s = sent.find(id);
     if (s == sent.end()) continue;
     const client::PoseUpdate& p = poses.at(id);
     // A preloaded frame's encoding counts as if done in its slot, as a camera's client would.
-    l.total.push_back(s->second.encoded_ahead_ms + ms(s->second.encode_start, t));
-    l.encode.push_back(s->second.encoded_ahead_ms + ms(s->second.encode_start, s->second.written));
+    l.total.push_back(s->second.encoded_ahead_ms + ms_between(s->second.encode_start, t));
+    l.encode.push_back(s->second.encoded_ahead_ms + ms_between(s->second.encode_start, s->second.written));
     l.decode.push_back(p.decode_ms);
     l.queue.push_back(p.queue_ms);
     l.track.push_back(p.track_ms);
-    l.rest.push_back(ms(s->second.written, t) - p.decode_ms - p.queue_ms - p.track_ms);
+    l.rest.push_back(ms_between(s->second.written, t) - p.decode_ms - p.queue_ms - p.track_ms);
   }
   return l;
 }
@@ -348,9 +349,6 @@ int run_stream(const StreamArgs& args) {
     *started = std::chrono::steady_clock::now();
     return client::Client::encode_frame(input, out, err);
   };
-  auto ms_since = [](TimePoint t) {
-    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-  };
   // --preload: the whole sequence read and encoded before the session opens, so that playing it
   // takes no CPU from a server on the same machine (a camera hands its frames over; the reading
   // and decoding of a recorded dataset is the replay's cost, not the client's).
@@ -365,14 +363,14 @@ int run_stream(const StreamArgs& args) {
     for (std::size_t i = 0; i < n; ++i) {
       TimePoint started;
       if (!encode_frame(i, &preloaded[i], &started, &why)) return fail(why);
-      preload_ms[i] = ms_since(started);
+      preload_ms[i] = ms_between(started, std::chrono::steady_clock::now());
       bytes += preloaded[i].colour.size() + preloaded[i].depth.size();
       progress.update(i + 1);
     }
     progress.finish();
     std::fprintf(stderr, "preloaded %zu frames: %.1f MB encoded in %.1f s; encoding %.1f ms per frame "
                  "(median), counted in the latency below\n", n, static_cast<double>(bytes) / 1e6,
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                 ms_between(t0, std::chrono::steady_clock::now()) / 1e3,
                  percentile(preload_ms, 0.5));
   }
   if (!client.open_session(args.session, map, 10000, &why, session_options)) {

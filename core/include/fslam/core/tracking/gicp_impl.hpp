@@ -285,7 +285,7 @@ LinearSystem linearize(const GaussianPoints& source, const Target& target,
                        const Eigen::Isometry3d& T_target_source, const GicpConfig& config,
                        const Reduction& reduction, FeatureSimilarityMemo* memo) {
   GicpFactorContext ctx = make_gicp_factor_context(source, target, T_target_source, config);
-  if (ctx.use_features) ctx.memo = memo;
+  ctx.memo = memo;  // read only where the features are used
   return reduce(source.size(), reduction, [&](std::size_t i, LinearSystem* system) {
     accumulate_gicp_factor(source, i, target, ctx, system);
   });
